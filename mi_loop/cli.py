@@ -1,0 +1,159 @@
+"""Command-line interface ``mi-loop``: the only module that parses arguments.
+
+Subcommands
+-----------
+``mi-loop demo -o OUTDIR``
+    Build a procedural control mesh, evaluate its Loop limit surface, render
+    it and write ``control.ply``, ``limit.ply`` and ``render.png`` to OUTDIR.
+``mi-loop render CONTROL -o OUT.png [--level L]``
+    Render the limit surface of a control mesh file (PLY/OBJ/OFF).
+``mi-loop control NAME -o OUT.ply``
+    Write a procedural control mesh (``blob``, ``icosphere``, ``torus``).
+
+Progress goes to stderr, written paths to stdout. Bad input ends with one
+line ``mi-loop: error: ...`` on stderr and exit status 1 (2 for bad usage).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import datasets, io
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors are one line on stderr."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
+
+
+def _level(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 6:
+        raise argparse.ArgumentTypeError(f"expected a level in 0..6, got {text}")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="mi-loop", description="Exact Loop subdivision limit surfaces in Mitsuba 3.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    def render_options(p):
+        p.add_argument("--level", type=_level, default=3, help="4**level triangles per control face (default 3)")
+        p.add_argument("--resolution", type=_positive, default=256, help="image width and height (default 256)")
+        p.add_argument("--spp", type=_positive, default=64, help="samples per pixel (default 64)")
+
+    demo = sub.add_parser("demo", help="render the limit surface of a procedural control mesh")
+    demo.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    demo.add_argument("--shape", choices=sorted(datasets.CONTROL_MESHES), default="blob")
+    render_options(demo)
+
+    render = sub.add_parser("render", help="render the limit surface of a control mesh file")
+    render.add_argument("control", type=Path, help="control mesh (PLY, OBJ or OFF)")
+    render.add_argument("-o", "--output", required=True, type=Path, help="PNG file to write")
+    render.add_argument("--creases", default="", help="sharp edges as vertex pairs, e.g. '0 1, 1 2'")
+    render_options(render)
+
+    control = sub.add_parser("control", help="write a procedural control mesh")
+    control.add_argument("name", choices=sorted(datasets.CONTROL_MESHES))
+    control.add_argument("-o", "--output", required=True, type=Path, help="PLY file to write")
+    return parser
+
+
+def _say(message: str, start: float) -> None:
+    print(f"[mi-loop {time.perf_counter() - start:6.1f}s] {message}", file=sys.stderr, flush=True)
+
+
+def _render(V, F, args, creases, start):
+    """Set the variant, render the limit surface; returns (sRGB image, shape)."""
+    from . import render
+    from .variant import set_variant
+
+    _say("setting Mitsuba variant llvm_ad_rgb (first kernel compilation takes a few seconds)", start)
+    set_variant("llvm_ad_rgb")
+    _say(f"evaluating the limit surface at level {args.level} and rendering "
+         f"{args.resolution}x{args.resolution} at {args.spp} spp", start)
+    return render.render_limit_surface(V, F, level=args.level, creases=creases,
+                                       resolution=args.resolution, spp=args.spp)
+
+
+def _demo(args, start) -> None:
+    from . import plugin, validate_mesh
+
+    out = io.ensure_writable_dir(args.output)
+    V, F = datasets.control_mesh(args.shape)
+    validate_mesh(V, F)
+    _say(f"control mesh '{args.shape}': {len(V)} vertices, {len(F)} faces", start)
+    written = [io.write_ply(out / "control.ply", V, F)]
+    image, shape = _render(V, F, args, None, start)
+    P, N, F_tess = plugin.mesh_arrays(shape)
+    _say(f"limit surface: {len(P)} vertices, {len(F_tess)} triangles", start)
+    written.append(io.write_ply(out / "limit.ply", P, F_tess, normals=N))
+    written.append(io.write_png(out / "render.png", image))
+    for path in written:
+        print(path)
+
+
+def _render_file(args, start) -> None:
+    from .plugin import parse_creases
+
+    if args.output.suffix.lower() != ".png":
+        raise ValueError(f"render: output must be a .png file, got '{args.output}'")
+    io.ensure_writable_dir(args.output.parent)
+    creases = parse_creases(args.creases)
+    V, F = io.read_mesh(args.control)
+    _say(f"control mesh '{args.control}': {len(V)} vertices, {len(F)} faces", start)
+    image, _ = _render(V, F, args, creases, start)
+    print(io.write_png(args.output, image))
+
+
+def _control(args, start) -> None:
+    io.ensure_writable_dir(args.output.parent)
+    V, F = datasets.control_mesh(args.name)
+    print(io.write_ply(args.output, V, F))
+
+
+def main(argv=None) -> int:
+    """Run ``mi-loop``; return the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        0 on success, 1 on bad input or a failed run, 2 on bad usage,
+        130 on Ctrl-C.
+    """
+    args = _parser().parse_args(argv)
+    start = time.perf_counter()
+    commands = {"demo": _demo, "render": _render_file, "control": _control}
+    try:
+        commands[args.command](args, start)
+    except (ValueError, TypeError, OSError, RuntimeError) as exc:
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"mi-loop: error: {message}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("mi-loop: error: interrupted", file=sys.stderr)
+        return 130
+    _say("done", start)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

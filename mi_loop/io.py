@@ -1,0 +1,206 @@
+"""Read control meshes and write meshes and images: the only module touching files.
+
+Writes are atomic: the data goes to a temporary file in the destination's
+directory, which then replaces the destination with :func:`os.replace`, so a
+crash never leaves a half-written file behind.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["ensure_writable_dir", "read_mesh", "write_ply", "write_png"]
+
+MESH_SUFFIXES = (".ply", ".obj", ".off")
+
+
+def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle control mesh from a PLY, OBJ or OFF file.
+
+    Vertex order is kept as stored (no merging, no reordering), because the
+    control points of a Loop surface are addressed by index.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File to read.
+
+    Returns
+    -------
+    V : (n, 3) float64 NumPy array
+        Vertex positions.
+    F : (m, 3) int64 NumPy array
+        Triangles as vertex indices (polygons are fan-triangulated by trimesh).
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, has an unsupported suffix, cannot be parsed,
+        or holds no vertices or no faces.
+    """
+    import trimesh
+
+    path = Path(path)
+    where = f"read_mesh: '{path}'"
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(f"{where}: expected a {'/'.join(MESH_SUFFIXES)} file, got suffix '{path.suffix}'")
+    if not path.is_file():
+        raise ValueError(f"{where}: no such file")
+    try:
+        mesh = trimesh.load(str(path), process=False, force="mesh")
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise ValueError(f"{where}: cannot parse mesh ({type(exc).__name__}: {exc})") from exc
+    V = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    F = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    if len(V) == 0:
+        raise ValueError(f"{where}: file holds no vertices")
+    if len(F) == 0:
+        raise ValueError(f"{where}: file holds {len(V)} vertices but no faces")
+    return V, F
+
+
+def ensure_writable_dir(path) -> Path:
+    """Create a directory if needed and check that files can be created in it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Directory to create (with parents) and probe.
+
+    Returns
+    -------
+    pathlib.Path
+        The directory.
+
+    Raises
+    ------
+    ValueError
+        If the directory cannot be created or written to; the message names
+        the path and the operating system's reason.
+    """
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ValueError(f"cannot write to directory '{path}': {exc.strerror or exc}") from exc
+    return path
+
+
+@contextlib.contextmanager
+def _atomic_open(path: Path):
+    """Yield a binary file in ``path``'s directory that replaces ``path`` on success."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def write_ply(path, V, F, normals=None) -> Path:
+    """Write a triangle mesh as a binary little-endian PLY file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    V : (n, 3) float array-like
+        Vertex positions, stored as float64 so control meshes round-trip exactly.
+    F : (m, 3) int array-like
+        Triangles, indices in ``[0, n)``.
+    normals : (n, 3) float array-like, optional
+        Per-vertex normals, stored as float32 (``nx ny nz``).
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        If the arrays have the wrong shape or face indices are out of range.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise ValueError(f"write_ply: expected V of shape (n, 3) with n > 0, got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"write_ply: expected integer F of shape (m, 3), got {F.dtype} {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
+        raise ValueError(f"write_ply: face {bad} = {F[bad].tolist()} indexes outside [0, {len(V)})")
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by mi_loop",
+              f"element vertex {len(V)}", "property double x", "property double y", "property double z"]
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float32)
+        if normals.shape != V.shape:
+            raise ValueError(f"write_ply: expected normals of shape {V.shape}, got {normals.shape}")
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+        header += ["property float nx", "property float ny", "property float nz"]
+    header += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
+
+    vertices = np.empty(len(V), dtype=fields)
+    for i, axis in enumerate("xyz"):
+        vertices[axis] = V[:, i]
+        if normals is not None:
+            vertices["n" + axis] = normals[:, i]
+    faces = np.empty(len(F), dtype=[("count", "u1"), ("indices", "<i4", (3,))])
+    faces["count"] = 3
+    faces["indices"] = F
+    path = Path(path)
+    with _atomic_open(path) as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(vertices.tobytes())
+        f.write(faces.tobytes())
+    return path
+
+
+def write_png(path, image) -> Path:
+    """Write an RGB(A) image as an 8-bit PNG file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    image : (h, w, 3) or (h, w, 4) array-like, uint8 or float
+        Display-ready pixels: uint8, or floats in [0, 1] (already
+        gamma-encoded; see :func:`mi_loop.render.to_srgb`).
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        If the image is not (h, w, 3|4) or a float image has values outside
+        [0, 1] or NaNs.
+    """
+    from matplotlib import image as mpl_image
+
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
+        raise ValueError(f"write_png: expected an (h, w, 3|4) image, got shape {image.shape}")
+    if image.dtype != np.uint8:
+        if not np.all((image >= 0) & (image <= 1)):
+            raise ValueError("write_png: float pixels must lie in [0, 1] (no NaN); "
+                             f"got range [{np.nanmin(image)}, {np.nanmax(image)}]")
+        image = np.round(image * 255).astype(np.uint8)
+    path = Path(path)
+    with _atomic_open(path) as f:
+        mpl_image.imsave(f, image, format="png")
+    return path
