@@ -41,31 +41,39 @@ _TERMS = [  # basis -> {(i, j, k): coefficient * 12}
 
 
 def _coefficients():
+    """Quartic coefficients (15, 12) and d/du, d/dv over cubic monomials (10, 12)."""
     C = np.zeros((15, 12))
     for b, terms in enumerate(_TERMS):
         for mono, c in terms.items():
             C[_MONO.index(mono), b] = c / 12.0
-    return C
-
-
-_C = _coefficients()
-_EXP = np.array(_MONO)
-
-
-def _monomials(wa, wb, wc, d=(0, 0, 0)):
-    """Derivative ``d`` (orders in wa, wb, wc) of every monomial, shape ``(k, 15)``."""
-    out = np.empty((len(wa), 15))
+    Du, Dv = np.zeros((10, 12)), np.zeros((10, 12))
     for m, (i, j, k) in enumerate(_MONO):
-        coef = 1.0
-        e = []
-        for p, q in zip((i, j, k), d):
-            for r in range(q):
-                coef *= p - r
-            e.append(p - q)
-        if coef == 0 or min(e) < 0:
-            out[:, m] = 0.0
-        else:
-            out[:, m] = coef * wa ** e[0] * wb ** e[1] * wc ** e[2]
+        # d/du = d/dwb - d/dwa, d/dv = d/dwc - d/dwa  (wa = 1 - u - v)
+        if j:
+            Du[_MONO3.index((i, j - 1, k))] += j * C[m]
+        if k:
+            Dv[_MONO3.index((i, j, k - 1))] += k * C[m]
+        if i:
+            Du[_MONO3.index((i - 1, j, k))] -= i * C[m]
+            Dv[_MONO3.index((i - 1, j, k))] -= i * C[m]
+    return C, Du, Dv
+
+
+_MONO3 = [(i, j, 3 - i - j) for i in range(3, -1, -1) for j in range(3 - i, -1, -1)]
+_C, _DU, _DV = _coefficients()
+
+
+def _monomials(wa, wb, wc, degree):
+    pa, pb, pc = [np.ones_like(wa)], [np.ones_like(wb)], [np.ones_like(wc)]
+    for _ in range(degree):
+        pa.append(pa[-1] * wa)
+        pb.append(pb[-1] * wb)
+        pc.append(pc[-1] * wc)
+    monos = _MONO if degree == 4 else _MONO3
+    out = np.empty((len(monos), len(wa)))
+    for m, (i, j, k) in enumerate(monos):
+        np.multiply(pa[i], pb[j], out=out[m])
+        out[m] *= pc[k]
     return out
 
 
@@ -85,12 +93,11 @@ def box_basis(uv: np.ndarray, derivative: str | None = None) -> np.ndarray:
     """
     u, v = uv[:, 0], uv[:, 1]
     wa = 1.0 - u - v
+    # Monomials are built row-major (monomial, point): much faster for large k.
     if derivative is None:
-        M = _monomials(wa, u, v)
-    elif derivative == "u":
-        M = _monomials(wa, u, v, (0, 1, 0)) - _monomials(wa, u, v, (1, 0, 0))
-    elif derivative == "v":
-        M = _monomials(wa, u, v, (0, 0, 1)) - _monomials(wa, u, v, (1, 0, 0))
-    else:
-        raise ValueError(f"box_basis(): derivative must be None, 'u' or 'v', got {derivative!r}")
-    return M @ _C
+        return (_C.T @ _monomials(wa, u, v, 4)).T
+    if derivative == "u":
+        return (_DU.T @ _monomials(wa, u, v, 3)).T
+    if derivative == "v":
+        return (_DV.T @ _monomials(wa, u, v, 3)).T
+    raise ValueError(f"box_basis(): derivative must be None, 'u' or 'v', got {derivative!r}")

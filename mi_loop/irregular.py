@@ -59,25 +59,40 @@ class LocalMatrices:
                 G[k, m] = E[k] @ Bm
             Bm = Bm @ B
         self.G = G
-        # Dominant decaying mode: a high even power of B, normalised.
-        X = B / np.abs(B).max()
-        for _ in range(12):
-            X = X @ X
-            X /= np.abs(X).max()
-        ts = box_basis(np.array([[0.0, 0.0]]), "u") @ E[0] @ X
-        tt = box_basis(np.array([[0.0, 0.0]]), "v") @ E[1] @ X
+        ts = _dominant_direction(box_basis(np.zeros((1, 2)), "u")[0] @ E[0], B)
+        tt = _dominant_direction(box_basis(np.zeros((1, 2)), "v")[0] @ E[1], B)
         # Along a crease edge the limit is a cubic B-spline curve (or its
         # end at a corner): its tangent is exact and finite; elsewhere the
         # dominant decaying mode gives the direction.
-        ts = ts[0] if crease_tangents[0] is None else crease_tangents[0]
-        tt = tt[0] if crease_tangents[1] is None else crease_tangents[1]
+        ts = ts if crease_tangents[0] is None else crease_tangents[0]
+        tt = tt if crease_tangents[1] is None else crease_tangents[1]
         self.T = np.stack([ts / np.linalg.norm(ts), tt / np.linalg.norm(tt)])
+
+
+def _dominant_direction(r: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Direction of ``lim r B^m`` (normalised): the slowest-decaying mode that ``r`` excites.
+
+    A high power of ``B`` (repeated squaring) is a multiple of the spectral
+    projector on its dominant modes; when ``r`` does not excite them (e.g. by
+    symmetry) they are deflated and the next group is tried.
+    """
+    Bk = B.copy()
+    for _ in range(8):
+        X = Bk / np.abs(Bk).max()
+        for _ in range(12):
+            X = X @ X
+            X /= np.abs(X).max()
+        y = r @ X
+        if np.linalg.norm(y) > 1e-8 * np.linalg.norm(r):
+            return y / np.linalg.norm(y)
+        rank = np.linalg.matrix_rank(X, tol=1e-8)
+        P = X * rank / np.trace(X)
+        Bk = Bk - Bk @ P
+    raise RuntimeError("_dominant_direction(): no decaying mode is excited")
 
 
 def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
     """Build :class:`LocalMatrices` at face ``g`` (rotated so ``v = F[g, rot]``)."""
-    from .limit import children_of
-
     n = topo.n
     f = topo.F[g]
     v, ri, rj = f[rot], f[(rot + 1) % 3], f[(rot + 2) % 3]
@@ -93,7 +108,7 @@ def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
         raise RuntimeError("build_local(): corner child is not self-similar")
     col = {int(p): i for i, p in enumerate(present)}
     A = _rows(S_next, Pc[Pc >= 0], col)
-    kids = children_of(v, ri, rj, m_vi, m_ij, m_jv)[1:]
+    kids = [(m_vi, ri, m_ij), (m_jv, m_ij, rj), (m_ij, m_jv, m_vi)]  # corner ri, corner rj, middle
     E = []
     for a, b, c in kids:
         Q = stam_points(fine_topo, np.array([a]), np.array([b]), np.array([c]))

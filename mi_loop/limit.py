@@ -21,11 +21,6 @@ from .subdivision import subdivide_topology
 from .topology import Topology, parse_creases, validate_faces
 
 
-def children_of(a, b, c, ab, bc, ca):
-    """The four children of face ``(a, b, c)`` in :func:`subdivision_matrix` order."""
-    return [(a, ab, ca), (ab, b, bc), (ca, bc, c), (bc, ca, ab)]
-
-
 def descend(uv: np.ndarray):
     """Child index and child parameters of points ``uv`` (k, 2) in a parent face."""
     u, v = uv[:, 0], uv[:, 1]
@@ -37,15 +32,63 @@ def descend(uv: np.ndarray):
 
 @dataclass
 class Hierarchy:
-    """Topology of the control mesh refined until faces have one irregular corner at most."""
+    """Control mesh refined until every face has one irregular corner at most.
 
-    levels: list       # Topology per level 0..L
-    S: list            # subdivision matrices, S[l] maps level l -> l + 1
-    kind: np.ndarray   # vertex rule at level L
-    irregular: np.ndarray  # (n_L,) bool, irregular vertices at level L (for all faces)
+    Per-face patch tables at the finest level are built once: regular faces
+    keep their 12 box-spline points and phantom pattern, irregular faces their
+    rotation, local-configuration id and patch points.
+    """
+
+    levels: list          # Topology per level 0..L
+    S: list               # S[l] maps level l -> l + 1
     max_valence: int
-    _local: dict = None
-    _next: tuple = None
+
+    def __post_init__(self):
+        topo = self.top
+        F = topo.F
+        kind = topo.vertex_kind()
+        val = topo.valence()
+        reg = np.stack([corner_regular(topo, kind, val, F[:, c], F[:, (c + 1) % 3])
+                        for c in range(3)], 1)
+        n_irr = (~reg).sum(1)
+        if (n_irr > 1).any():
+            raise RuntimeError("Hierarchy: a face has two irregular corners after subdivision")
+        self.irr_corner = np.where(n_irr == 0, -1, np.argmax(~reg, axis=1))
+        m = len(F)
+        self.reg_P = np.zeros((m, 12), dtype=np.int64)
+        self.reg_pid = np.zeros(m, dtype=np.int64)
+        r = np.flatnonzero(self.irr_corner < 0)
+        P = stam_points(topo, F[r, 0], F[r, 1], F[r, 2])
+        self.reg_pid[r], self.Phis = phantom_matrices(P)
+        self.reg_P[r] = np.maximum(P, 0)
+        self._irregular_tables(kind)
+
+    def _irregular_tables(self, kind):
+        topo, mv = self.top, self.max_valence
+        g = np.flatnonzero(self.irr_corner >= 0)
+        rot = self.irr_corner[g]
+        F = topo.F[g]
+        r = np.arange(len(g))
+        v, ri, rj = F[r, rot], F[r, (rot + 1) % 3], F[r, (rot + 2) % 3]
+        P = irregular_points(topo, v, ri, rj, mv)
+        ok = P >= 0
+        sector = ok.copy()
+        sector[:, 0] = False
+        sector[:, 1 + 2 * mv:] = False
+        sharp = np.zeros_like(ok)
+        sharp[sector] = topo.edge_sharp(np.broadcast_to(v[:, None], P.shape)[sector], P[sector])
+        sig_arr = np.concatenate([ok, sharp, kind[v][:, None] == np.arange(3)], 1)
+        _, first, sig = np.unique(np.packbits(sig_arr, axis=1), axis=0,
+                                  return_index=True, return_inverse=True)
+        self.irr_sig = np.full(len(topo.F), -1, dtype=np.int64)
+        self.irr_sig[g] = sig
+        order = np.argsort(~ok, axis=1, kind="stable")  # present slots first, in order
+        self.irr_P = np.zeros((len(topo.F), P.shape[1]), dtype=np.int64)
+        self.irr_P[g] = np.maximum(np.take_along_axis(P, order, 1), 0)
+        self.locals = []
+        if len(g):
+            S_next, fine = subdivide_topology(topo)
+            self.locals = [build_local(topo, fine, S_next, g[i], rot[i], mv) for i in first]
 
     @property
     def top(self) -> Topology:
@@ -57,19 +100,6 @@ class Hierarchy:
         for S in self.S[1:]:
             M = S @ M
         return M.tocsr()
-
-    def next_level(self):
-        if self._next is None:
-            self._next = subdivide_topology(self.top)
-        return self._next
-
-    def local(self, signature, g, rot):
-        if self._local is None:
-            self._local = {}
-        if signature not in self._local:
-            S_next, fine = self.next_level()
-            self._local[signature] = build_local(self.top, fine, S_next, g, rot, self.max_valence)
-        return self._local[signature]
 
 
 def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarchy:
@@ -84,28 +114,11 @@ def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarc
         S, topo = subdivide_topology(topo)
         Ss.append(S)
         levels.append(topo)
-    kind = topo.vertex_kind()
-    val = topo.valence()
-    # A vertex is irregular for a face unless it is corner-regular for it;
-    # evaluated per face corner in `classify`.
-    return Hierarchy(levels, Ss, kind, np.zeros(topo.n, bool), int(val.max()))
-
-
-def classify(h: Hierarchy):
-    """Per face at level L: index (0..2) of its irregular corner, or -1."""
-    topo = h.top
-    F = topo.F
-    val = topo.valence()
-    reg = np.stack([corner_regular(topo, h.kind, val, F[:, c], F[:, (c + 1) % 3])
-                    for c in range(3)], 1)
-    n_irr = (~reg).sum(1)
-    if (n_irr > 1).any():
-        raise RuntimeError("classify(): a face has two irregular corners after subdivision")
-    return np.where(n_irr == 0, -1, np.argmax(~reg, axis=1))
+    return Hierarchy(levels, Ss, int(topo.valence().max()))
 
 
 def map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
-    """Face and parameters at level L of control-face points; derivative sign."""
+    """Face and parameters at level L of control-face points; derivative factor."""
     f = face_ids.astype(np.int64)
     sign = np.ones(len(f))
     for _ in range(len(h.S)):
@@ -115,56 +128,23 @@ def map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
     return f, uv, sign * 2.0 ** len(h.S)
 
 
-def _regular_rows(topo, faces, uv, derivative):
-    F = topo.F[faces]
-    P = stam_points(topo, F[:, 0], F[:, 1], F[:, 2])
-    pid, Phis = phantom_matrices(P)
+def _regular_rows(h, faces, uv, derivative):
     b = box_basis(uv, derivative)
-    W = np.einsum("ki,kij->kj", b, Phis[pid]) if len(Phis) > 1 else b @ Phis[0]
-    return np.maximum(P, 0), W
-
-
-def _irregular_rows(h, faces, rot, uv, derivative):
-    """Rows for points in faces whose corner ``rot`` is irregular; ``(idx, W)`` padded."""
-    topo = h.top
-    F = topo.F[faces]
-    r = np.arange(len(faces))
-    v, ri, rj = F[r, rot], F[r, (rot + 1) % 3], F[r, (rot + 2) % 3]
-    P = irregular_points(topo, v, ri, rj, h.max_valence)
-    ok = P >= 0
-    sector = ok.copy()
-    sector[:, 0] = False
-    sector[:, 1 + 2 * h.max_valence:] = False
-    sharp = np.zeros_like(P, dtype=bool)
-    sharp[sector] = topo.edge_sharp(np.broadcast_to(v[:, None], P.shape)[sector], P[sector])
-    sig_arr = np.concatenate([ok, sharp, h.kind[v][:, None] == np.arange(3)], 1)
-    sigs, sig_id = np.unique(np.packbits(sig_arr, axis=1), axis=0, return_inverse=True)
-    bary = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)
-    s, t = bary[r, (rot + 1) % 3], bary[r, (rot + 2) % 3]
-    idx = np.zeros(P.shape, dtype=np.int64)
-    W = np.zeros(P.shape)
-    for k_sig in range(len(sigs)):
-        sel = np.flatnonzero(sig_id == k_sig)
-        first = sel[0]
-        loc = h.local(sigs[k_sig].tobytes(), faces[first], rot[first])
-        Ps = P[sel]
-        K = len(loc.pi)
-        cols = np.argsort(Ps < 0, axis=1, kind="stable")[:, :K]  # present slots, in order
-        idx[sel, :K] = np.take_along_axis(Ps, cols, 1)
-        W[sel, :K] = _local_rows(loc, s[sel], t[sel], derivative)
-    return idx, W
+    pid = h.reg_pid[faces]
+    for p in np.unique(pid):
+        if not np.array_equal(h.Phis[p], np.eye(12)):
+            sel = pid == p
+            b[sel] = b[sel] @ h.Phis[p]
+    return h.reg_P[faces], b
 
 
 def _local_rows(loc, s, t, derivative):
     """Weights over the K patch points (s along v->r_i, t along v->r_j)."""
     st = s + t
     at_vertex = st <= 2.0 ** -MAX_DEPTH
-    m = np.where(at_vertex, 0, np.floor(-np.log2(np.maximum(st, 1e-300)))).astype(np.int64)
-    m = np.clip(m, 0, MAX_DEPTH)
-    # Guard floor() rounding: the scaled sum must lie in (1/2, 1].
-    scale = 2.0 ** m
-    m = np.where(st * scale > 1.0, m - 1, np.where(st * scale <= 0.5, m + 1, m))
-    m = np.clip(m, 0, MAX_DEPTH)
+    m = np.floor(-np.log2(np.maximum(st, 2.0 ** -MAX_DEPTH)))
+    m = np.where(st * 2.0 ** m > 1.0, m - 1, np.where(st * 2.0 ** m <= 0.5, m + 1, m))
+    m = np.clip(m, 0, MAX_DEPTH).astype(np.int64)
     scale = 2.0 ** m
     ss, tt = s * scale, t * scale
     child = np.where(ss >= 0.5, 0, np.where(tt >= 0.5, 1, 2))
@@ -172,54 +152,78 @@ def _local_rows(loc, s, t, derivative):
     cv = np.select([child == 0, child == 1], [2 * tt, 2 * tt - 1], 1 - 2 * tt)
     cuv = np.clip(np.stack([cu, cv], 1), 0.0, 1.0)
     K = len(loc.pi)
-    out = np.zeros((len(s), K))
-    factor = np.where(child == 2, -2.0, 2.0) * scale
     if derivative is None:
+        out = np.broadcast_to(loc.pi, (len(s), K)).copy()
         b = box_basis(cuv)
-        out[:] = loc.pi
-        for k in range(3):
-            sel = (child == k) & ~at_vertex
-            out[sel] += np.einsum("ki,kij->kj", b[sel], loc.G[k][m[sel]])
-        return out
-    name = {"s": "u", "t": "v"}[derivative]
-    b = box_basis(cuv, name)
-    for k in range(3):
-        sel = (child == k) & ~at_vertex
-        out[sel] = factor[sel, None] * np.einsum("ki,kij->kj", b[sel], loc.G[k][m[sel]])
-    out[at_vertex] = loc.T[0 if derivative == "s" else 1]
+        factor = np.ones(len(s))
+    else:
+        out = np.zeros((len(s), K))
+        b = box_basis(cuv, {"s": "u", "t": "v"}[derivative])
+        factor = np.where(child == 2, -2.0, 2.0) * scale
+    key = np.where(at_vertex, -1, child * (MAX_DEPTH + 1) + m)
+    for k in np.unique(key[key >= 0]):
+        sel = key == k
+        out[sel] += factor[sel, None] * (b[sel] @ loc.G[k // (MAX_DEPTH + 1), k % (MAX_DEPTH + 1)])
+    if derivative is not None:
+        out[at_vertex] = loc.T[0 if derivative == "s" else 1]
     return out
 
 
-def level_rows(h: Hierarchy, face_ids, uv, derivative=None):
-    """Padded rows ``(idx (k, w), W (k, w))`` over level-L vertices."""
-    faces, uvL, sign = map_to_level(h, face_ids, uv)
-    irr = classify(h)[faces]
-    width = max(12, h.max_valence * 2 + 6 + 1)
-    idx = np.zeros((len(faces), width), dtype=np.int64)
-    W = np.zeros((len(faces), width))
-    reg = irr < 0
-    if reg.any():
-        i, w = _regular_rows(h.top, faces[reg], uvL[reg], derivative)
-        idx[reg, :12], W[reg, :12] = i, w * (sign[reg, None] if derivative else 1.0)
-    if (~reg).any():
-        sel = np.flatnonzero(~reg)
-        rot = irr[sel]
+def _irregular_rows(h, faces, uv, derivative):
+    """Rows for points in faces with an irregular corner; ``(idx, W)`` padded."""
+    rot = h.irr_corner[faces]
+    r = np.arange(len(faces))
+    bary = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)
+    s, t = bary[r, (rot + 1) % 3], bary[r, (rot + 2) % 3]
+    sig = h.irr_sig[faces]
+    idx = h.irr_P[faces]
+    W = np.zeros(idx.shape)
+    if derivative is not None:
+        # d/du, d/dv from d/ds, d/dt with (s, t) = barycentrics (rot+1, rot+2).
+        dbary = np.zeros((len(faces), 3))
+        dbary[:, 0], dbary[:, 1 if derivative == "u" else 2] = -1.0, 1.0
+        ds, dt = dbary[r, (rot + 1) % 3][:, None], dbary[r, (rot + 2) % 3][:, None]
+    for q in np.unique(sig):
+        sel = sig == q
+        loc = h.locals[q]
+        K = len(loc.pi)
         if derivative is None:
-            i, w = _irregular_rows(h, faces[sel], rot, uvL[sel], None)
+            W[sel, :K] = _local_rows(loc, s[sel], t[sel], None)
         else:
-            # d/du, d/dv from d/ds, d/dt: (s, t) = barycentrics (rot+1, rot+2).
-            i, ws = _irregular_rows(h, faces[sel], rot, uvL[sel], "s")
-            _, wt = _irregular_rows(h, faces[sel], rot, uvL[sel], "t")
-            col = 1 if derivative == "u" else 2
-            dbary = np.zeros((len(sel), 3))
-            dbary[:, 0], dbary[:, col] = -1.0, 1.0
-            r = np.arange(len(sel))
-            ds = dbary[r, (rot + 1) % 3][:, None]
-            dt = dbary[r, (rot + 2) % 3][:, None]
-            w = (ds * ws + dt * wt) * sign[sel, None]
-        idx[sel, :i.shape[1]], W[sel, :i.shape[1]] = i, w
-    used = int((W != 0).any(0).nonzero()[0].max()) + 1 if W.size else 0
-    return idx[:, :used], W[:, :used]
+            W[sel, :K] = (ds[sel] * _local_rows(loc, s[sel], t[sel], "s")
+                          + dt[sel] * _local_rows(loc, s[sel], t[sel], "t"))
+    return idx, W
+
+
+def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
+    """Padded rows ``[(idx (k, w), W (k, w)), ...]`` over level-L vertices, one per derivative."""
+    faces, uvL, sign = map_to_level(h, face_ids, uv)
+    reg = h.irr_corner[faces] < 0
+    ri, ii = np.flatnonzero(reg), np.flatnonzero(~reg)
+    all_regular = len(ii) == 0
+    out = []
+    for d in derivatives:
+        if all_regular:
+            idx, W = _regular_rows(h, faces, uvL, d)
+            W = np.ascontiguousarray(W)
+        else:
+            # Regular block then irregular block, padded to one width, then
+            # one row gather back to sample order.
+            i_r, w_r = _regular_rows(h, faces[ri], uvL[ri], d)
+            i_i, w_i = _irregular_rows(h, faces[ii], uvL[ii], d)
+            width = max(12, i_i.shape[1])
+            pad = ((0, 0), (0, width - 12))
+            idx = np.concatenate([np.pad(i_r, pad), i_i])
+            W = np.concatenate([np.pad(w_r, pad), w_i])
+            inverse = np.empty(len(faces), dtype=np.int64)
+            inverse[np.concatenate([ri, ii])] = np.arange(len(faces))
+            idx, W = idx[inverse], W[inverse]
+        if d is not None:
+            W *= sign[:, None]
+        nz = np.flatnonzero((W != 0).any(0))
+        used = int(nz.max()) + 1 if len(nz) else 1
+        out.append((idx[:, :used], W[:, :used]))
+    return out
 
 
 def _check_samples(face_ids, uv, m, func):
@@ -303,5 +307,5 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
         raise ValueError(f"limit_matrix(): derivative must be None, 'u' or 'v', got {derivative!r}")
     h = build_hierarchy(F, n_vertices, creases)
     face_ids, uv = _check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
-    idx, W = level_rows(h, face_ids, uv, derivative)
+    (idx, W), = level_rows(h, face_ids, uv, (derivative,))
     return (padded_to_csr(idx, W, h.top.n) @ h.composed()).tocsr()
