@@ -251,7 +251,9 @@ def _check_samples(face_ids, uv, m, func):
 def padded_to_csr(idx, W, n_cols):
     """CSR matrix ``(k, n_cols)`` from padded rows (duplicates summed, zeros dropped)."""
     k, w = W.shape
-    M = sp.csr_matrix((W.ravel(), idx.ravel(), np.arange(0, k * w + 1, w)), shape=(k, n_cols))
+    # Copies: sum_duplicates() sorts and compacts the arrays in place.
+    M = sp.csr_matrix((W.ravel().copy(), idx.ravel().copy(), np.arange(0, k * w + 1, w)),
+                      shape=(k, n_cols))
     M.sum_duplicates()
     M.eliminate_zeros()
     return M

@@ -30,24 +30,25 @@ def _csr_to_padded(M: sp.csr_matrix):
 
 
 class _Padded:
-    """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``."""
+    """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``.
+
+    One gather of all ``rows * width`` entries, then a block sum over each row.
+    """
 
     def __init__(self, idx: np.ndarray, W: np.ndarray):
         import mitsuba as mi
 
         self.shape = idx.shape
-        self.idx = [mi.UInt32(np.ascontiguousarray(idx[:, j], dtype=np.uint32)) for j in range(idx.shape[1])]
-        self.w = [mi.Float(np.ascontiguousarray(W[:, j], dtype=np.float32)) for j in range(W.shape[1])]
+        self.idx = mi.UInt32(np.ascontiguousarray(idx, dtype=np.uint32).ravel())
+        self.w = mi.Float(np.ascontiguousarray(W, dtype=np.float32).ravel())
 
     def apply(self, x):
         """``x``: ``mi.Point3f`` or ``mi.Vector3f``; returns the same type, length ``rows``."""
         import drjit as dr
 
         cls = type(x)
-        acc = dr.zeros(cls, self.shape[0])
-        for idx, w in zip(self.idx, self.w):
-            acc += w * dr.gather(cls, x, idx)
-        return acc
+        terms = self.w * dr.gather(cls, x, self.idx)
+        return cls(*(dr.block_sum(terms[c], self.shape[1]) for c in range(3)))
 
 
 class LimitOperator:
