@@ -38,10 +38,11 @@ class LocalMatrices:
     G : (3, MAX_DEPTH + 1, 12, K) float64
         ``E_k B^m`` for the children ``k`` = corner ``r_i``, corner ``r_j``, middle.
     T : (2, K) float64
-        Unit tangent directions at the vertex along ``s`` and ``t``.
+        Orthonormal rows spanning the limit tangent plane at the vertex, in
+        the orientation of ``s x t`` (see :func:`_tangent_pair`).
     """
 
-    def __init__(self, A: np.ndarray, E: np.ndarray, crease_tangents=(None, None)):
+    def __init__(self, A: np.ndarray, E: np.ndarray):
         K = len(A)
         w, Vl = np.linalg.eig(A.T)
         i1 = np.argmin(np.abs(w - 1.0))
@@ -59,36 +60,28 @@ class LocalMatrices:
                 G[k, m] = E[k] @ Bm
             Bm = Bm @ B
         self.G = G
-        ts = _dominant_direction(box_basis(np.zeros((1, 2)), "u")[0] @ E[0], B)
-        tt = _dominant_direction(box_basis(np.zeros((1, 2)), "v")[0] @ E[1], B)
-        # Along a crease edge the limit is a cubic B-spline curve (or its
-        # end at a corner): its tangent is exact and finite; elsewhere the
-        # dominant decaying mode gives the direction.
-        ts = ts if crease_tangents[0] is None else crease_tangents[0]
-        tt = tt if crease_tangents[1] is None else crease_tangents[1]
-        self.T = np.stack([ts / np.linalg.norm(ts), tt / np.linalg.norm(tt)])
+        self.T = _tangent_pair(box_basis(np.zeros((1, 2)), "u")[0] @ E[0],
+                               box_basis(np.zeros((1, 2)), "v")[0] @ E[1], B)
 
 
-def _dominant_direction(r: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Direction of ``lim r B^m`` (normalised): the slowest-decaying mode that ``r`` excites.
+def _tangent_pair(r_s: np.ndarray, r_t: np.ndarray, B: np.ndarray, steps: int = 240) -> np.ndarray:
+    """Rows spanning the limit tangent plane at the vertex, with the orientation of ``s x t``.
 
-    A high power of ``B`` (repeated squaring) is a multiple of the spectral
-    projector on its dominant modes; when ``r`` does not excite them (e.g. by
-    symmetry) they are deflated and the next group is tried.
+    The derivative rows at depth ``m`` are ``r B^m``; their cross product is
+    dominated by the pair of slowest-decaying modes they excite (which need not
+    be the two edge directions: at a dart or crease vertex both rows can tend
+    to the same dominant mode). Subspace iteration on the pair with an
+    orientation-preserving Gram-Schmidt step (positive triangular factor)
+    converges to that plane at rate ``|lambda_3 / lambda_2|`` and keeps the sign
+    of the normal ``cross(T_s V, T_t V)``.
     """
-    Bk = B.copy()
-    for _ in range(8):
-        X = Bk / np.abs(Bk).max()
-        for _ in range(12):
-            X = X @ X
-            X /= np.abs(X).max()
-        y = r @ X
-        if np.linalg.norm(y) > 1e-8 * np.linalg.norm(r):
-            return y / np.linalg.norm(y)
-        rank = np.linalg.matrix_rank(X, tol=1e-8)
-        P = X * rank / np.trace(X)
-        Bk = Bk - Bk @ P
-    raise RuntimeError("_dominant_direction(): no decaying mode is excited")
+    Y = np.stack([r_s, r_t]).astype(np.float64)
+    for _ in range(steps):
+        Y = Y @ B
+        Y[0] /= np.linalg.norm(Y[0])
+        Y[1] -= (Y[1] @ Y[0]) * Y[0]
+        Y[1] /= np.linalg.norm(Y[1])
+    return Y
 
 
 def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
@@ -117,32 +110,7 @@ def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
         ok = Q[0] >= 0
         T[ok] = _rows(S_next, Q[0][ok], col)
         E.append(Phis[pid[0]] @ T)
-    return LocalMatrices(A, np.stack(E), _crease_tangents(topo, P, v, (ri, rj), col, max_valence))
-
-
-def _crease_tangents(topo, P, v, ends, col, max_valence):
-    """Exact tangent rows along sharp face edges at a crease or corner vertex."""
-    kind = topo.vertex_kind()[v]
-    sector = P[1:1 + 2 * max_valence]
-    sector = sector[sector >= 0]
-    sharp_nb = sector[topo.edge_sharp(np.full(len(sector), v), sector)]
-    out = []
-    for r in ends:
-        if kind == 0 or not topo.edge_sharp(np.array([v]), np.array([r]))[0]:
-            out.append(None)
-            continue
-        t = np.zeros(len(col))
-        t[col[int(r)]] += 1.0
-        if kind == 1:  # B-spline through the two sharp neighbours
-            other = [x for x in sharp_nb if x != r]
-            if len(other) != 1:
-                out.append(None)
-                continue
-            t[col[int(other[0])]] -= 1.0
-        else:  # corner: the curve starts at v
-            t[col[int(v)]] -= 1.0
-        out.append(t)
-    return out
+    return LocalMatrices(A, np.stack(E))
 
 
 def _rows(S, idx, col):

@@ -294,8 +294,9 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     creases and boundaries), powers of the local subdivision matrix next to
     irregular vertices (Stam 1998, without eigenvectors), the limit mask at the
     vertex itself. At an irregular vertex the parametric derivatives vanish or
-    diverge; there the rows are unit-norm tangent directions along the two face
-    edges, whose cross product is the exact limit normal.
+    diverge; there the two derivative rows are orthonormal rows spanning the
+    limit tangent plane, oriented so that ``cross(du, dv)`` is the exact limit
+    normal.
 
     Examples
     --------
