@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     commands = {"demo": _demo, "render": _render_file, "control": _control}
     try:
         commands[args.command](args, start)
-    except (ValueError, TypeError, OSError, RuntimeError) as exc:
+    except (ValueError, TypeError, OSError, RuntimeError, ImportError) as exc:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"mi-loop: error: {message}", file=sys.stderr)
         return 1

@@ -51,9 +51,14 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise ValueError(f"{where}: no such file")
     try:
-        mesh = trimesh.load(str(path), process=False, force="mesh")
+        mesh = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
         raise ValueError(f"{where}: cannot parse mesh ({type(exc).__name__}: {exc})") from exc
+    if isinstance(mesh, trimesh.Scene):
+        parts = list(mesh.geometry.values())
+        if len(parts) > 1:
+            raise ValueError(f"{where}: file holds {len(parts)} separate meshes, expected one")
+        mesh = parts[0] if parts else None
     V = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     F = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     if len(V) == 0:
@@ -92,6 +97,16 @@ def ensure_writable_dir(path) -> Path:
     return path
 
 
+def _file_mode(path: Path) -> int:
+    """Permissions for ``path``: those of the file it replaces, else 0666 less the umask."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def _atomic_open(path: Path):
     """Yield a binary file in ``path``'s directory that replaces ``path`` on success."""
@@ -101,6 +116,7 @@ def _atomic_open(path: Path):
     try:
         with os.fdopen(fd, "wb") as f:
             yield f
+        os.chmod(tmp, _file_mode(path))       # mkstemp makes 0600 files
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -196,9 +212,10 @@ def write_png(path, image) -> Path:
     if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
         raise ValueError(f"write_png: expected an (h, w, 3|4) image, got shape {image.shape}")
     if image.dtype != np.uint8:
-        if not np.all((image >= 0) & (image <= 1)):
+        bad = ~((image >= 0) & (image <= 1))
+        if bad.any():
             raise ValueError("write_png: float pixels must lie in [0, 1] (no NaN); "
-                             f"got range [{np.nanmin(image)}, {np.nanmax(image)}]")
+                             f"got {image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
         image = np.round(image * 255).astype(np.uint8)
     path = Path(path)
     with _atomic_open(path) as f:

@@ -160,7 +160,7 @@ def _shape_class(variant: str):
             if control_mesh is None:
                 if "filename" not in props:
                     raise ValueError("loop_subdiv: missing the 'filename' property (control mesh PLY/OBJ/OFF)")
-                control_mesh = io.read_mesh(mi.file_resolver().resolve(props.get("filename")))
+                control_mesh = io.read_mesh(str(mi.file_resolver().resolve(props.get("filename"))))
             V, F = (np.asarray(a) for a in control_mesh)
             validate_mesh(V, F)
             if "to_world" in props:
@@ -198,7 +198,7 @@ def _shape_class(variant: str):
             cb.put("control_points", self._x,
                    mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
 
-        def parameters_changed(self, keys=[]):  # noqa: B006 (signature of mi.Object)
+        def parameters_changed(self, keys=()):
             if not keys or "control_points" in keys:
                 self._update_geometry()
             else:

@@ -10,8 +10,9 @@ import numpy as np
 __all__ = ["PLASTIC", "look_at_bbox", "render_limit_surface", "render_view",
            "scene_dict", "sensor_dict", "to_srgb"]
 
-#: Default material of rendered limit surfaces: a blue plastic.
-PLASTIC = {"type": "plastic", "diffuse_reflectance": {"type": "rgb", "value": [0.18, 0.38, 0.72]}}
+#: Default material of rendered limit surfaces: a blue rough plastic.
+PLASTIC = {"type": "roughplastic", "alpha": 0.15,
+           "diffuse_reflectance": {"type": "rgb", "value": [0.18, 0.38, 0.72]}}
 
 
 def _direction(azimuth: float, elevation: float) -> np.ndarray:
@@ -81,14 +82,13 @@ def sensor_dict(bbox_min, bbox_max, *, azimuth: float = 35.0, elevation: float =
 
 
 def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: float = 35.0,
-               integrator: dict | None = None, sample_border: bool = False) -> dict:
+               integrator: dict | None = None, sample_border: bool = False, bbox=None) -> dict:
     """Return a scene dictionary: the shape, one sensor per view, environment and area light.
 
     Parameters
     ----------
     shape : mi.Shape
-        The loaded shape (e.g. from :func:`mi_loop.plugin.create`); its
-        bounding box places the cameras and the light.
+        The loaded shape (e.g. from :func:`mi_loop.plugin.create`).
     views : sequence of (azimuth, elevation) in degrees, optional
         One sensor per entry, in order (``sensor=i`` of :func:`render_view`).
     resolution, fov, sample_border :
@@ -96,18 +96,22 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
     integrator : dict, optional
         Integrator dictionary (default: ``path`` with ``max_depth`` 4). Use
         ``{'type': 'direct_projective'}`` to differentiate silhouettes.
+    bbox : ((3,), (3,)) float array-like, optional
+        Box that places the cameras and the light (default: the shape's
+        bounding box). Fix it to keep the same views while the shape changes.
 
     Returns
     -------
     dict
         Pass it to ``mi.load_dict``.
     """
-    bbox = shape.bbox()
-    lo, hi = np.array(bbox.min, dtype=np.float64), np.array(bbox.max, dtype=np.float64)
+    if bbox is None:
+        bbox = (shape.bbox().min, shape.bbox().max)
+    lo, hi = (np.array(corner, dtype=np.float64).reshape(3) for corner in bbox)
     centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
     import mitsuba as mi
 
-    light_at = centre + 3 * radius * _direction(75.0, 55.0)
+    light_at = centre + 3 * radius * _direction(60.0, 70.0)      # high: out of low-elevation views
     scene = {
         "type": "scene",
         "integrator": integrator if integrator is not None else {"type": "path", "max_depth": 4},
@@ -116,7 +120,7 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
         "key_light": {
             "type": "rectangle",
             "to_world": mi.ScalarTransform4f().look_at(origin=light_at.tolist(), target=centre.tolist(),
-                                                       up=[0, 1, 0]).scale(0.6 * radius),
+                                                       up=[0, 1, 0]).scale([0.6 * radius] * 3),
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 6.0}},
         },
     }
