@@ -1,0 +1,142 @@
+"""Automatic templates (mi_loop.template): sphere oracle, the real bunny scan, slivers, errors."""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+import mi_loop
+from mi_loop.io_points import load_oriented_points
+from mi_loop.template import _angles, _remove_slivers, make_template, poisson_depth
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
+
+
+@pytest.fixture(scope="module")
+def sphere_points():
+    P = np.random.default_rng(0).normal(size=(20000, 3))
+    return P / np.linalg.norm(P, axis=1, keepdims=True)
+
+
+@pytest.fixture(scope="module")
+def bunny_scan():
+    P, N, _ = load_oriented_points(BUNNY_SCAN)
+    return P, N
+
+
+def _check_closed_valid(V, F, genus=0, min_angle=10.0):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                    # no unreferenced vertices either
+        V2, F2, kept = mi_loop.validate_mesh(V, F)
+    assert len(kept) == len(V)
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(E, axis=0, return_counts=True)
+    assert (counts == 2).all()                            # closed
+    assert len(V) - len(counts) + len(F) == 2 - 2 * genus  # Euler characteristic
+    volume = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6
+    assert volume > 0                                     # outward
+    assert _angles(V, F).min() >= min_angle
+    labels = trimesh.graph.connected_components(E, nodes=np.arange(len(V)))
+    assert len(labels) == 1
+
+
+@pytest.mark.parametrize("n", [100, 642])
+def test_sphere_template(sphere_points, n):
+    P = sphere_points
+    V, F, info = make_template(P, P * 3.0, n)
+    assert abs(len(V) - n) <= 0.03 * n and info["vertices"] == len(V)
+    _check_closed_valid(V, F)
+    np.testing.assert_allclose(np.linalg.norm(V, axis=1), 1.0, atol=0.03)
+    assert info["depth"] == 6 and info["genus"] == 0 and info["boundary_edges"] == 0
+    assert info["poisson_components"] >= 1
+    assert info["poisson_vertices"] > 2 * n and info["min_angle"] >= 10
+    for key in ("time_poisson", "time_decimate", "time_cleanup", "time_total"):
+        assert info[key] >= 0
+
+
+def test_orientation_follows_the_normals(sphere_points):
+    V, F, _ = make_template(sphere_points, -sphere_points, 200)
+    volume = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6
+    assert volume < 0                                     # inward normals, inward faces
+    _check_closed_valid(V, F[:, ::-1])
+
+
+def test_open_scan_keeps_its_boundary():
+    P, N, _ = load_oriented_points(DATA / "scans" / "demosthenes-low-res.obj", n_samples=50_000)
+    V, F, info = make_template(P, N, 800)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mi_loop.validate_mesh(V, F)
+    assert info["boundary_edges"] > 0 and info["genus"] is None
+    assert abs(len(V) - 800) <= 0.03 * 800 and _angles(V, F).min() >= 10
+    from scipy.spatial import cKDTree
+
+    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    agree = np.sum(normals * N[cKDTree(P).query(V[F].mean(1))[1]], axis=1)
+    assert np.mean(agree > 0) > 0.9
+
+
+@pytest.mark.parametrize("n", [314, 1000, 4667])
+def test_bunny_scan_templates(bunny_scan, n):
+    P, N = bunny_scan
+    V, F, info = make_template(P, N, n)
+    assert abs(len(V) - n) <= 0.03 * n and info["depth"] == poisson_depth(n)
+    _check_closed_valid(V, F)
+    # Template vertices lie near the scan (Poisson closes the unscanned bottom, so not all).
+    from scipy.spatial import cKDTree
+
+    d = cKDTree(P).query(V)[0] / np.linalg.norm(np.ptp(P, axis=0))
+    assert np.median(d) < 0.01
+
+
+def test_remove_slivers_fixes_needles_and_caps():
+    fine = trimesh.creation.icosphere(subdivisions=5)
+    m = trimesh.creation.icosphere(subdivisions=3)
+    V, F = np.array(m.vertices), np.array(m.faces)
+    for v in (0, 50, 200):                                # pull vertices onto a neighbour: needles
+        w = F[np.flatnonzero((F == v).any(1))[0]]
+        w = w[w != v][0]
+        V[v] = V[w] + 0.02 * (V[v] - V[w])
+    assert _angles(V, F).min() < 2
+    V2, F2, stats = _remove_slivers(V, F, np.asarray(fine.vertices), np.asarray(fine.faces), 10.0)
+    _check_closed_valid(V2, F2)
+    assert stats["min_angle"] >= 10 and stats["flips"] + stats["collapses"] > 0
+    assert len(V2) >= len(V) - 3
+    np.testing.assert_allclose(np.linalg.norm(V2, axis=1), 1.0, atol=2e-3)
+
+
+def test_poisson_depth_rule():
+    assert [poisson_depth(n) for n in (4, 2000, 2001, 8000, 8001)] == [6, 6, 7, 7, 8]
+
+
+def test_errors(sphere_points):
+    P = sphere_points
+    with pytest.raises(ValueError, match="n_vertices must be an integer >= 4, got 3"):
+        make_template(P, P, 3)
+    with pytest.raises(ValueError, match="n_vertices must be an integer"):
+        make_template(P, P, 100.0)
+    with pytest.raises(ValueError, match="more than half the 20000 input points"):
+        make_template(P, P, 10001)
+    with pytest.raises(ValueError, match="half the .* vertices of the depth-4 Poisson surface; pass a larger depth"):
+        make_template(P, P, 2000, depth=4)
+    with pytest.raises(ValueError, match="must both have shape"):
+        make_template(P, P[:-1], 100)
+    Q = P.copy()
+    Q[17, 1] = np.nan
+    with pytest.raises(ValueError, match="point or normal 17 is not finite"):
+        make_template(Q, P, 100)
+    N = P.copy()
+    N[9] = 0
+    with pytest.raises(ValueError, match="normal 9 has zero length"):
+        make_template(P, N, 100)
+    with pytest.raises(ValueError, match="depth must be an integer in \\[4, 10\\]"):
+        make_template(P, P, 100, depth=11)
+    with pytest.raises(ValueError, match="min_angle must be in"):
+        make_template(P, P, 100, min_angle=30)
+    with pytest.raises(ValueError, match="max_points must be at least 1000"):
+        make_template(P, P, 100, max_points=10)
