@@ -9,6 +9,12 @@ Subcommands
     Render the limit surface of a control mesh file (PLY/OBJ/OFF).
 ``mi-loop control NAME -o OUT.ply``
     Write a procedural control mesh (``blob``, ``icosphere``, ``torus``).
+``mi-loop fit INPUT -o OUTDIR [--vertices N | --template PATH] ...``
+    Fit a Loop control mesh to a point cloud or mesh (IMLS + ARAP); writes
+    ``control.ply``, ``limit.ply``, ``report.json``, ``loss.png``, ``render.png``.
+``mi-loop compare A B``
+    Two-sided distances and the Neural Parametric Surfaces metrics between
+    a control mesh's limit surface (or any mesh) and a target file.
 
 Progress goes to stderr, written paths to stdout. Bad input ends with one
 line ``mi-loop: error: ...`` on stderr and exit status 1 (2 for bad usage).
@@ -66,10 +72,39 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--creases", default="", help="sharp edges as vertex pairs, e.g. '0 1, 1 2'")
     render_options(render)
 
+    fit = sub.add_parser("fit", help="fit a Loop control mesh to a point cloud or mesh")
+    fit.add_argument("input", type=Path, nargs="?",
+                     help="points (PLY/XYZ/PTS/NPZ) or mesh (PLY/OBJ/OFF); omit with --demo")
+    fit.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    fit_options(fit)
+    fit.add_argument("--demo", action="store_true",
+                     help="fit the built-in noisy torus point cloud (no input file)")
+
+    compare = sub.add_parser("compare", help="distances between a fitted surface and a target")
+    compare.add_argument("fitted", type=Path, help="control mesh (its limit surface is used) or --mesh")
+    compare.add_argument("target", type=Path, help="target points or mesh")
+    compare.add_argument("--mesh", action="store_true",
+                         help="treat FITTED as a plain triangle mesh, not a control mesh")
+    compare.add_argument("--json", type=Path, help="also write the numbers to this JSON file")
+
     control = sub.add_parser("control", help="write a procedural control mesh")
     control.add_argument("name", choices=sorted(datasets.CONTROL_MESHES))
     control.add_argument("-o", "--output", required=True, type=Path, help="PLY file to write")
     return parser
+
+
+def fit_options(p):
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--vertices", type=int, default=1000,
+                       help="control vertices of the automatic template (default 1000)")
+    group.add_argument("--template", type=Path, help="control mesh to start from instead")
+    p.add_argument("--alpha", type=float, help="ARAP weight (default 0.01)")
+    p.add_argument("--h0", type=float, help="IMLS radius in the unit box (default: from point spacing)")
+    p.add_argument("--samples", choices=["vertices", "level1", "random"], default="vertices",
+                   help="limit samples in the distance term (default: one per control vertex)")
+    p.add_argument("--iterations", type=_positive, default=400, help="iteration cap (default 400)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _say(message: str, start: float) -> None:
@@ -119,6 +154,28 @@ def _render_file(args, start) -> None:
     print(io.write_png(args.output, image))
 
 
+def _fit(args, start) -> None:
+    from . import fitting_job
+
+    if args.demo == (args.input is not None):
+        raise ValueError("fit: give either an INPUT file or --demo")
+    for path in fitting_job.run(args, start, _say):
+        print(path)
+
+
+def _compare(args, start) -> None:
+    import json
+
+    from . import fitting_job
+
+    result = fitting_job.compare(args.fitted, args.target, plain_mesh=args.mesh)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.json:
+        io.ensure_writable_dir(args.json.parent)
+        io.write_text(args.json, text + "\n")
+
+
 def _control(args, start) -> None:
     io.ensure_writable_dir(args.output.parent)
     V, F = datasets.control_mesh(args.name)
@@ -141,7 +198,8 @@ def main(argv=None) -> int:
     """
     args = _parser().parse_args(argv)
     start = time.perf_counter()
-    commands = {"demo": _demo, "render": _render_file, "control": _control}
+    commands = {"demo": _demo, "render": _render_file, "control": _control,
+                "fit": _fit, "compare": _compare}
     try:
         commands[args.command](args, start)
     except (ValueError, TypeError, OSError, RuntimeError, ImportError) as exc:

@@ -221,3 +221,11 @@ def write_png(path, image) -> Path:
     with _atomic_open(path) as f:
         mpl_image.imsave(f, image, format="png")
     return path
+
+
+def write_text(path, text: str) -> Path:
+    """Write a UTF-8 text file (e.g. JSON), atomically; returns the path."""
+    path = Path(path)
+    with _atomic_open(path) as f:
+        f.write(text.encode("utf-8"))
+    return path

@@ -23,7 +23,7 @@ import re
 
 import numpy as np
 
-__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_creases", "register"]
+__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_creases", "plain_mesh", "register"]
 
 #: Name of the plugin in scene dictionaries and XML files.
 PLUGIN_NAME = "loop_subdiv"
@@ -281,3 +281,38 @@ def create(V, F, level: int = 3, creases=None, bsdf=None):
     if bsdf is not None:
         props["bsdf"] = bsdf
     return cls(props, control_mesh=(V, F), creases=creases)
+
+
+def plain_mesh(V, F, normals=None, bsdf=None):
+    """Build an ordinary Mitsuba triangle mesh from arrays (e.g. a target to compare with).
+
+    Parameters
+    ----------
+    V : (k, 3) float NumPy array
+        Vertex positions.
+    F : (t, 3) int NumPy array
+        Triangles.
+    normals : (k, 3) float NumPy array, optional
+        Vertex normals (flat shading without them).
+    bsdf : mi.BSDF, optional
+        Surface material.
+
+    Returns
+    -------
+    mi.Mesh
+    """
+    import mitsuba as mi
+
+    V = np.asarray(V, dtype=np.float32)
+    F = np.asarray(F, dtype=np.uint32)
+    props = mi.Properties()
+    if bsdf is not None:
+        props["bsdf"] = bsdf
+    mesh = mi.Mesh("plain", len(V), len(F), props, has_vertex_normals=normals is not None)
+    params = mi.traverse(mesh)
+    params[_POSITIONS] = mi.Float(V.ravel())
+    params[_FACES] = mi.UInt32(F.ravel())
+    if normals is not None:
+        params[_NORMALS] = mi.Float(np.asarray(normals, dtype=np.float32).ravel())
+    params.update()
+    return mesh

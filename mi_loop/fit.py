@@ -1,0 +1,301 @@
+"""Fit a Loop control mesh to oriented points: IMLS distance + ARAP, Adam in Dr.Jit.
+
+No file I/O here (see :mod:`mi_loop.io` and :mod:`mi_loop.io_points`); the CLI
+passes a progress callback.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .masks import _CORNER_UV
+from .tessellation import tessellate
+from .topology import validate_mesh
+
+SAMPLE_MODES = ("vertices", "level1", "random")
+
+
+class FitError(RuntimeError):
+    """The optimisation could not produce a finite result."""
+
+
+@dataclass
+class Normalisation:
+    """Map data to the unit box (largest extent 1, centred at 0) and back."""
+
+    centre: np.ndarray
+    scale: float
+
+    @classmethod
+    def of(cls, P: np.ndarray) -> "Normalisation":
+        lo, hi = P.min(0), P.max(0)
+        return cls((lo + hi) / 2.0, float((hi - lo).max()))
+
+    def forward(self, X):
+        return (np.asarray(X) - self.centre) / self.scale
+
+    def inverse(self, X):
+        return np.asarray(X) * self.scale + self.centre
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`.
+
+    Attributes
+    ----------
+    V : (n, 3) float64 numpy array
+        Fitted control points, in the input's units.
+    F : (m, 3) int64 numpy array
+        Control faces.
+    V_template : (n, 3) float64 numpy array
+        Control points before fitting, in the input's units.
+    history : dict of lists
+        Per iteration: ``imls``, ``arap``, ``total`` energies, ``lr``.
+    timings : dict
+        Seconds per stage.
+    params : dict
+        Parameters actually used (after automatic choices).
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    V_template: np.ndarray
+    history: dict
+    timings: dict
+    params: dict
+    info: dict = field(default_factory=dict)
+
+    def limit_mesh(self, level: int = 3):
+        """Dense limit mesh ``(V_lim, F_lim, N_lim)`` of the fitted surface (NumPy)."""
+        from .limit import limit_matrix
+
+        fid, uv, F_t = tessellate(self.F, level)
+        W = limit_matrix(self.F, len(self.V), fid, uv)
+        Wu = limit_matrix(self.F, len(self.V), fid, uv, derivative="u")
+        Wv = limit_matrix(self.F, len(self.V), fid, uv, derivative="v")
+        N = np.cross(Wu @ self.V, Wv @ self.V)
+        return W @ self.V, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
+
+
+def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
+    """Limit-sample parameters ``(face_ids, uv)`` for a sampling ``mode``.
+
+    ``'vertices'``: one sample per control vertex (its limit point, the
+    thesis's default); ``'level1'``: the points of a level-1 tessellation;
+    ``'random'``: four uniformly random points per face.
+    """
+    if mode == "vertices":
+        face = np.zeros(n_vertices, dtype=np.int64)
+        corner = np.zeros(n_vertices, dtype=np.int64)
+        for c in range(3):
+            face[F[:, c]] = np.arange(len(F))
+            corner[F[:, c]] = c
+        return face, _CORNER_UV[corner].copy()
+    if mode == "level1":
+        fid, uv, _ = tessellate(F, 1)
+        return fid, uv
+    if mode == "random":
+        rng = np.random.default_rng(seed)
+        fid = np.repeat(np.arange(len(F)), 4)
+        uv = rng.random((len(fid), 2))
+        flip = uv.sum(1) > 1
+        uv[flip] = 1.0 - uv[flip]
+        return fid, uv
+    raise ValueError(f"fit(): samples must be one of {SAMPLE_MODES}, got {mode!r}")
+
+
+def _mean_edge(V, F):
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    return float(np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1).mean())
+
+
+def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float | None = None,
+        h0: float | None = None, samples: str = "vertices", max_iterations: int = 400,
+        tolerance: float = 1e-4, seed: int = 0, progress=None) -> FitResult:
+    """Fit a Loop control mesh to oriented points.
+
+    Minimises ``E = mean_j f(Q_j)^2 + alpha * E_arap(V0) / n`` over the control
+    points ``V0`` where ``Q = W V0`` are exact limit samples and ``f`` is the
+    IMLS function of the data (Xie 2022, eqs. 8-13), with Adam (Dr.Jit).
+
+    Parameters
+    ----------
+    points : (N, 3) float numpy array
+        Data points.
+    normals : (N, 3) float numpy array
+        Unit normals at the data points (oriented outward).
+    n_vertices : int
+        Control vertices of the automatic template (ignored with ``template``).
+    template : tuple ``(V, F)``, optional
+        Control mesh to start from, in the data's units.
+    alpha : float, optional
+        ARAP weight; default 0.01 (the thesis's value for clean data).
+    h0 : float, optional
+        IMLS support radius in the unit box; automatic from the point spacing.
+    samples : {'vertices', 'level1', 'random'}
+        Limit samples in the distance term.
+    max_iterations : int
+        Iteration cap; the loop normally stops on relative improvement.
+    tolerance : float
+        Stop when the energy improved by less than this fraction over the
+        last 25 iterations (after a learning-rate decay has been tried).
+    seed : int
+        Seed for random sampling.
+    progress : callable, optional
+        Called as ``progress(iteration, max_iterations, energy)``.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    ValueError
+        Invalid data or template. :class:`FitError` if the optimisation
+        diverges (non-finite energy) and cannot recover.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from .arap import ARAP
+    from .imls import IMLS
+    from .operator import LimitOperator
+
+    t_all = time.perf_counter()
+    timings = {}
+    P, N = _check_points(points, normals)
+    norm = Normalisation.of(P)
+    Pn = norm.forward(P)
+
+    t = time.perf_counter()
+    if template is None:
+        from .template import make_template
+
+        V0, F, tinfo = make_template(Pn, N, n_vertices, seed=seed)
+    else:
+        V0, F = template
+        V0, F, _ = validate_mesh(V0, F, "fit")
+        V0 = norm.forward(V0)
+        tinfo = {"source": "user"}
+    timings["template"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    fid, uv = sample_parameters(F, len(V0), samples, seed)
+    op = LimitOperator(F, len(V0), fid, uv, derivatives=False)
+    timings["operator"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    imls = IMLS(Pn, N, h0=h0)
+    arap = ARAP(V0, F)
+    alpha = 0.01 if alpha is None else float(alpha)
+    timings["energies"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    V, history = _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress)
+    timings["optimisation"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_all
+    params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
+              "h0": float(imls.h0), "samples": samples, "n_samples": int(len(fid)),
+              "max_iterations": max_iterations, "tolerance": tolerance, "seed": seed,
+              "iterations": len(history["total"]), "normalisation_scale": norm.scale}
+    return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
+                     {"template": tinfo})
+
+
+def _check_points(points, normals):
+    P = np.asarray(points, dtype=np.float64)
+    N = np.asarray(normals, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
+        raise ValueError(f"fit(): points must have shape (N, 3) with N > 0, got {P.shape}")
+    if N.shape != P.shape:
+        raise ValueError(f"fit(): normals must have the shape of points {P.shape}, got {N.shape}")
+    bad = np.flatnonzero(~np.isfinite(P).all(1) | ~np.isfinite(N).all(1))
+    if len(bad):
+        raise ValueError(f"fit(): point {bad[0]} has a non-finite coordinate or normal")
+    length = np.linalg.norm(N, axis=1)
+    bad = np.flatnonzero(length < 1e-12)
+    if len(bad):
+        raise ValueError(f"fit(): normal {bad[0]} has zero length")
+    return P, N / length[:, None]
+
+
+def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress):
+    """Adam on the control points.
+
+    Schedule: the first step size is a third of the initial RMS IMLS residual
+    (the distance the surface has to move), capped by a twentieth of the mean
+    control edge; when the best energy has not improved by ``tolerance``
+    (relative) for ``patience`` iterations the step halves and the iterate
+    returns to the best one; after six halvings, or when the best energy
+    improved by less than ``tolerance`` over the last 60 iterations, it stops.
+    A non-finite energy restores the best iterate with a quarter of the step.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    n = len(V0)
+    alpha_t = dr.opaque(mi.Float, alpha / n)
+    history = {"imls": [], "arap": [], "total": [], "lr": []}
+    best_E, best_V = np.inf, V0.copy()
+    best_at, lr, decays, recoveries, refresh_at = 0, None, 0, 0, None
+    cap = 0.05 * _mean_edge(V0, arap.F)
+    patience = 12
+    opt = None
+    x = mi.Float(V0.ravel().astype(np.float32))
+    for it in range(max_iterations):
+        if opt is not None:
+            x = opt["x"]
+        Q = op.positions(x)
+        Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
+        Qn = np.array(Q, dtype=np.float64).T
+        if refresh_at is None or np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
+            imls.update(Qn)
+            refresh_at = Qn
+        R = arap.rotations(Vn)
+        if opt is None:
+            dr.enable_grad(x)
+        e_imls = imls.energy(Q if opt is not None else op.positions(x), reduce="mean")
+        E = e_imls + alpha_t * arap.energy(x, R)
+        values = (float(e_imls[0]), float(E[0]) - float(e_imls[0]), float(E[0]))
+        if not (np.all(np.isfinite(values)) and np.isfinite(Vn).all()):
+            recoveries += 1
+            if recoveries > 5 or lr is None:
+                raise FitError("fit(): the optimisation diverged (non-finite energy); "
+                               "try a smaller --alpha or another template")
+            lr *= 0.25
+            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
+            continue
+        if opt is None:
+            lr = float(np.clip(np.sqrt(values[0]) / 3.0, 1e-6, cap))
+            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(V0.ravel().astype(np.float32))})
+            x = opt["x"]
+            Q = op.positions(x)
+            E = imls.energy(Q, reduce="mean") + alpha_t * arap.energy(x, R)
+        dr.backward(E)
+        for key, val in zip(("imls", "arap", "total"), values):
+            history[key].append(val)
+        history["lr"].append(lr)
+        if values[2] < best_E * (1.0 - tolerance):
+            best_at = it
+        if values[2] < best_E:
+            best_E, best_V = values[2], Vn
+        if progress is not None:
+            progress(it + 1, max_iterations, values[2])
+        if it - best_at > patience:
+            decays += 1
+            if decays > 6:
+                break
+            lr *= 0.5
+            best_at = it
+            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
+            continue
+        window = 60
+        if it > window and history["total"][-window - 1] > 0:
+            old = min(history["total"][:-window])
+            if old - best_E < tolerance * old:
+                break
+        opt.step()
+    return best_V, history

@@ -1,0 +1,150 @@
+"""The ``mi-loop fit`` and ``mi-loop compare`` jobs: read, fit, measure, draw, write.
+
+Everything is computed before the first output file is written, and each file
+is written atomically, so a failed or interrupted run leaves no partial output.
+"""
+from __future__ import annotations
+
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import io
+
+
+def load_input(path: Path, say):
+    """Oriented points of INPUT (normals estimated when missing) and a render target."""
+    from .io_points import estimate_normals, load_oriented_points
+
+    P, N, info = load_oriented_points(path)
+    if N is None:
+        say(f"{path.name}: {len(P)} points without normals: estimating and orienting normals")
+        N = estimate_normals(P)
+        info["normals_estimated"] = True
+    target = ("points", P, N)
+    if info.get("kind") == "mesh":
+        V, F = io.read_mesh(path)
+        target = ("mesh", V, F)
+    return P, N, target, info
+
+
+def _progress(quiet: bool):
+    if quiet:
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, desc="fitting", unit="it", leave=False, dynamic_ncols=True)
+
+    def update(i, total, energy):
+        bar.total = total
+        bar.n = i
+        bar.set_postfix_str(f"E={energy:.3e}", refresh=False)
+        bar.refresh()
+
+    return update, bar.close
+
+
+def run(args, start, say):
+    """Run ``mi-loop fit``; return the written paths."""
+    from .datasets import noisy_torus_points
+    from .fit import fit
+    from .metrics import two_sided
+    from .report import loss_plot, side_by_side
+    from .variant import set_variant
+
+    if args.vertices is not None and args.template is None and args.vertices < 4:
+        raise ValueError(f"fit: --vertices must be at least 4, got {args.vertices}")
+    if args.demo:
+        P, N, clean = noisy_torus_points()
+        target, info = ("points", P, N), {"kind": "points", "source": "built-in noisy torus",
+                                          "n_points": len(P)}
+        say(f"built-in noisy torus: {len(P)} points (0.5% noise, 1% outliers)", start)
+    else:
+        P, N, target, info = load_input(args.input, lambda m: say(m, start))
+        say(f"{args.input.name}: {len(P)} oriented points", start)
+    template = None
+    if args.template is not None:
+        from .topology import validate_mesh
+
+        V_t, F_t = io.read_mesh(args.template)
+        validate_mesh(V_t, F_t, f"--template {args.template}")
+        template = (V_t, F_t)
+    existed = args.output.exists()
+    out = io.ensure_writable_dir(args.output)
+    try:
+        set_variant("llvm_ad_rgb")
+        say("fitting (template, limit operator, IMLS + ARAP with Adam)", start)
+        update, close = _progress(args.quiet)
+        try:
+            result = fit(P, N, n_vertices=args.vertices, template=template, alpha=args.alpha,
+                         h0=args.h0, samples=args.samples, max_iterations=args.iterations,
+                         seed=args.seed, progress=update)
+        finally:
+            close()
+        say(f"fitted {len(result.V)} control vertices in {result.params['iterations']} iterations "
+            f"({result.timings['total']:.1f} s)", start)
+        t = time.perf_counter()
+        V_lim, F_lim, N_lim = result.limit_mesh(3)
+        metrics = two_sided(V_lim, F_lim, P if target[0] == "points" else target[1],
+                            None if target[0] == "points" else target[2], seed=args.seed)
+        result.timings["metrics"] = time.perf_counter() - t
+        say(f"distance to the data (relative to bbox diagonal): mean {metrics['mean']:.2e}, "
+            f"RMS {metrics['rms']:.2e}, Hausdorff {metrics['hausdorff']:.2e}", start)
+        t = time.perf_counter()
+        loss = loss_plot(result.history)
+        render = side_by_side(target, result.V, result.F)
+        result.timings["pictures"] = time.perf_counter() - t
+        report = {"input": str(args.input) if args.input else info["source"], "input_info": info,
+                  "params": result.params, "timings_s": result.timings, "metrics": metrics,
+                  "template": result.info["template"], "machine": platform.node(),
+                  "final_energy": {k: result.history[k][-1] for k in ("imls", "arap", "total")}}
+    except BaseException:
+        if not existed and not any(out.iterdir()):
+            out.rmdir()
+        raise
+    return [io.write_ply(out / "control.ply", result.V, result.F),
+            io.write_ply(out / "limit.ply", V_lim, F_lim, normals=N_lim),
+            io.write_text(out / "report.json", json.dumps(_plain(report), indent=2) + "\n"),
+            io.write_png(out / "loss.png", loss),
+            io.write_png(out / "render.png", render)]
+
+
+def _plain(x):
+    """JSON-friendly copy (NumPy scalars and arrays to Python)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def compare(fitted: Path, target: Path, plain_mesh: bool = False) -> dict:
+    """Distances between FITTED (limit surface of a control mesh, or a mesh) and TARGET."""
+    from .io_points import load_oriented_points
+    from .limit import limit_matrix
+    from .metrics import nps_metrics, two_sided
+    from .tessellation import tessellate
+    from .topology import validate_mesh
+
+    V, F = io.read_mesh(fitted)
+    if not plain_mesh:
+        V, F, _ = validate_mesh(V, F, f"compare: {fitted}")
+        fid, uv, F_t = tessellate(F, 3)
+        V, F = limit_matrix(F, len(V), fid, uv) @ V, F_t
+    P, _, info = load_oriented_points(target)
+    out = {"two_sided": None, "nps": None}
+    if info.get("kind") == "mesh":
+        Vt, Ft = io.read_mesh(target)
+        out["two_sided"] = two_sided(V, F, Vt, Ft)
+        out["nps"] = nps_metrics((V, F), (Vt, Ft))
+    else:
+        out["two_sided"] = two_sided(V, F, P)
+        del out["nps"]
+    return _plain(out)
