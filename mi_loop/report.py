@@ -32,6 +32,10 @@ def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
         values = np.asarray(history[key])
         if len(values) and (values > 0).any():
             ax.semilogy(it, np.maximum(values, 1e-30), label=label)
+    floor = min(np.min(np.asarray(history[k])[np.asarray(history[k]) > 0], initial=np.inf)
+                for k in ("total", "imls"))
+    if np.isfinite(floor):
+        ax.set_ylim(bottom=floor / 10)
     ax.set_xlabel("iteration")
     ax.set_ylabel("energy (unit box)")
     ax.set_title(title)
@@ -80,7 +84,7 @@ def side_by_side(target, fit_V, fit_F, *, resolution: int = 320, spp: int = 32,
 
     kind, A, B = target
     if kind == "points":
-        spacing = np.linalg.norm(A.max(0) - A.min(0)) / np.sqrt(len(A)) * 1.2
+        spacing = np.linalg.norm(A.max(0) - A.min(0)) / np.sqrt(len(A)) * 2.0
         A, B = splat_mesh(A, B, spacing)
     bbox = (A.min(0), A.max(0))
     grey = {"type": "plastic", "diffuse_reflectance": {"type": "rgb", "value": [0.55, 0.55, 0.52]}}

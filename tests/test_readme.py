@@ -25,7 +25,7 @@ def test_quick_start_is_one_block_of_two_commands():
     blocks = FENCE.findall(section("Quick start"))
     assert len(blocks) == 1
     main_job, tests = commands(blocks[0][1])             # exactly two commands
-    assert "mi-loop demo" in main_job and "pytest" in tests
+    assert "mi-loop fit --demo" in main_job and "pytest" in tests
     assert "/work/shared" not in main_job
 
 
