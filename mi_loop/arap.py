@@ -213,11 +213,13 @@ class ARAP:
         import drjit as dr
         import mitsuba as mi
 
+        from .operator import unravel_points
+
         if isinstance(x, mi.Float):
             if dr.width(x) != 3 * self.n:
                 raise ValueError(f"ARAP.energy: expected {3 * self.n} coordinates "
                                  f"({self.n} points, xyz interleaved), got {dr.width(x)}")
-            x = dr.unravel(mi.Point3f, x)
+            x = unravel_points(x)
         elif not isinstance(x, mi.Point3f):
             raise TypeError(f"ARAP.energy: control points must be mi.Float (3n) or mi.Point3f, "
                             f"got {type(x).__name__}")

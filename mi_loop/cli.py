@@ -12,6 +12,10 @@ Subcommands
 ``mi-loop fit INPUT -o OUTDIR [--vertices N | --template PATH] ...``
     Fit a Loop control mesh to a point cloud or mesh (IMLS + ARAP); writes
     ``control.ply``, ``limit.ply``, ``report.json``, ``loss.png``, ``render.png``.
+``mi-loop fit-sequence FRAMES... -o OUTDIR [--template PATH | --vertices N] ...``
+    Fit one control mesh frame by frame to a sequence (IMLS + ARAP + multi-view
+    differentiable rendering); writes ``control/``, ``limit/``, ``metrics.csv``,
+    ``drift.png``, ``strip.png``; ``--resume`` continues an interrupted run.
 ``mi-loop compare A B``
     Two-sided distances and the Neural Parametric Surfaces metrics between
     a control mesh's limit surface (or any mesh) and a target file.
@@ -79,6 +83,32 @@ def _parser() -> argparse.ArgumentParser:
     fit_options(fit)
     fit.add_argument("--demo", action="store_true",
                      help="fit the built-in noisy torus point cloud (no input file)")
+
+    seq = sub.add_parser("fit-sequence", help="fit one control mesh to every frame of a sequence")
+    seq.add_argument("frames", type=Path, nargs="+",
+                     help="an NPZ (vertices (T,V,3), faces), or frame files / directories")
+    seq.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    group = seq.add_mutually_exclusive_group()
+    group.add_argument("--vertices", type=int, default=1000, help="template control vertices (default 1000)")
+    group.add_argument("--template", type=Path, help="control mesh to use for every frame")
+    seq.add_argument("--views", type=_positive, default=20, help="cameras around the subject (default 20)")
+    seq.add_argument("--views-per-iteration", type=_positive, default=2, help="random views per iteration (default 2)")
+    seq.add_argument("--res", type=_positive, default=96, help="image size (default 96)")
+    seq.add_argument("--spp", type=_positive, default=4, help="samples per pixel of the renders (default 4)")
+    seq.add_argument("--beta", type=float, default=1.0, help="image-loss weight (default 1)")
+    seq.add_argument("--alpha", type=float, default=0.01, help="ARAP weight (default 0.01)")
+    seq.add_argument("--loss", choices=["l1", "l2"], default="l1")
+    seq.add_argument("--mode", choices=["shading", "silhouette"], default="shading",
+                     help="shaded images (default) or silhouettes only")
+    seq.add_argument("--iterations", type=_positive, default=60, help="geometric iterations per frame (default 60)")
+    seq.add_argument("--image-iterations", type=_positive, default=8,
+                     help="iterations with the image term per frame (default 8)")
+    seq.add_argument("--points", type=_positive, default=20_000, help="points sampled per mesh frame")
+    exclusive = seq.add_mutually_exclusive_group()
+    exclusive.add_argument("--no-image", action="store_true", help="geometric terms only (baseline)")
+    exclusive.add_argument("--image-only", action="store_true", help="image term (+ ARAP) only (baseline)")
+    seq.add_argument("--resume", action="store_true", help="continue after the last finished frame")
+    seq.add_argument("--seed", type=int, default=0)
 
     compare = sub.add_parser("compare", help="distances between a fitted surface and a target")
     compare.add_argument("fitted", type=Path, help="control mesh (its limit surface is used) or --mesh")
@@ -163,6 +193,15 @@ def _fit(args, start) -> None:
         print(path)
 
 
+def _fit_sequence(args, start) -> None:
+    from . import sequence_job
+
+    if args.vertices is not None and args.template is None and args.vertices < 4:
+        raise ValueError(f"fit-sequence: --vertices must be at least 4, got {args.vertices}")
+    for path in sequence_job.run(args, start, _say):
+        print(path)
+
+
 def _compare(args, start) -> None:
     import json
 
@@ -199,7 +238,7 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     start = time.perf_counter()
     commands = {"demo": _demo, "render": _render_file, "control": _control,
-                "fit": _fit, "compare": _compare}
+                "fit": _fit, "compare": _compare, "fit-sequence": _fit_sequence}
     try:
         commands[args.command](args, start)
     except (ValueError, TypeError, OSError, RuntimeError, ImportError) as exc:

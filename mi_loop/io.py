@@ -229,3 +229,71 @@ def write_text(path, text: str) -> Path:
     with _atomic_open(path) as f:
         f.write(text.encode("utf-8"))
     return path
+
+
+def read_frames(inputs) -> list:
+    """List the frames of a sequence without reading them (they are read one at a time).
+
+    Parameters
+    ----------
+    inputs : list of str or os.PathLike
+        One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``; or mesh /
+        point-cloud files, or directories (their PLY/OBJ/OFF/XYZ/PTS/NPZ files,
+        sorted by name).
+
+    Returns
+    -------
+    list of callables
+        ``frames[t]()`` reads frame ``t`` and returns ``(name, V_or_P, F_or_None, N_or_None)``.
+
+    Raises
+    ------
+    ValueError
+        Empty sequence, missing paths, an NPZ without ``vertices``/``faces``.
+    """
+    suffixes = {".ply", ".obj", ".off", ".xyz", ".pts", ".txt", ".npz"}
+    paths = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            paths += sorted(q for q in p.iterdir() if q.suffix.lower() in suffixes)
+        elif p.exists():
+            paths.append(p)
+        else:
+            raise ValueError(f"read_frames: no such file or directory: '{p}'")
+    if not paths:
+        raise ValueError("read_frames: the sequence is empty (no frame files found)")
+    if len(paths) == 1 and paths[0].suffix.lower() == ".npz":
+        try:
+            data = np.load(paths[0])
+            Vs, F = np.asarray(data["vertices"], dtype=np.float64), np.asarray(data["faces"])
+        except KeyError as exc:
+            raise ValueError(f"read_frames: '{paths[0]}' has no array {exc}; expected "
+                             "'vertices' (T, V, 3) and 'faces' (F, 3)") from exc
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"read_frames: cannot read '{paths[0]}': {exc}") from exc
+        if Vs.ndim != 3 or Vs.shape[2] != 3 or len(Vs) == 0:
+            raise ValueError(f"read_frames: '{paths[0]}' vertices must be (T, V, 3) with T > 0, "
+                             f"got {Vs.shape}")
+        return [(lambda t=t: (f"{paths[0].stem}[{t}]", Vs[t], F, None)) for t in range(len(Vs))]
+
+    def reader(p):
+        def read():
+            from .io_points import load_oriented_points
+
+            if p.suffix.lower() in {".obj", ".off"} or _has_faces(p):
+                V, F = read_mesh(p)
+                return p.name, V, F, None
+            P, N, _ = load_oriented_points(p)
+            return p.name, P, None, N
+        return read
+    return [reader(p) for p in paths]
+
+
+def _has_faces(path: Path) -> bool:
+    """Whether a PLY file declares faces (header only)."""
+    if path.suffix.lower() != ".ply":
+        return False
+    with open(path, "rb") as f:
+        head = f.read(4096).split(b"end_header")[0]
+    return b"element face" in head and not b"element face 0" in head

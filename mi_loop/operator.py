@@ -29,6 +29,31 @@ def _csr_to_padded(M: sp.csr_matrix):
     return idx, W
 
 
+_UNRAVELLED: list = [None, None]  # [x, Point3f of x]: the last variable unravelled
+
+
+def unravel_points(x):
+    """``mi.Point3f (n)`` from a flat ``mi.Float (3n)`` (xyz interleaved), differentiably.
+
+    Every consumer of the same variable (limit operators, ARAP, the
+    ``loop_subdiv`` plugin) receives the same unravelled array: in Dr.Jit
+    1.5.0, when one AD variable is gathered into two separate intermediate
+    arrays that are gathered again, the reverse pass mis-accumulates the third
+    component (reproduced in ``tests/test_operator.py``). Sharing one
+    intermediate avoids it. The cached variable is held, so its index cannot be
+    reused by another array while cached.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    last, points = _UNRAVELLED
+    if last is not None and last.index == x.index and last.index_ad == x.index_ad:
+        return points
+    points = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, dr.width(x) // 3))
+    _UNRAVELLED[:] = [x, points]
+    return points
+
+
 class _Padded:
     """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``.
 
@@ -123,7 +148,7 @@ class LimitOperator:
         if dr.width(x) != 3 * self.n:
             raise ValueError(f"LimitOperator: expected {3 * self.n} control coordinates "
                              f"({self.n} points, xyz interleaved), got {dr.width(x)}")
-        return dr.unravel(mi.Point3f, x)
+        return unravel_points(x)
 
     def evaluate(self, x):
         """Limit points and parametric derivatives.

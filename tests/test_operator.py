@@ -106,3 +106,61 @@ def test_repeated_calls_reuse_kernels():
     launched = [k for k in hist if k.get("type") == dr.KernelType.JIT]
     assert launched, "no kernel was launched at all"
     assert all(k.get("cache_hit") for k in launched), [k.get("cache_hit") for k in launched]
+
+
+def test_gradient_of_two_branches_on_the_same_control_points():
+    """Limit-operator energy + ARAP energy of the same x: the gradient is the sum of both.
+
+    (Guards against Dr.Jit's ``dr.unravel`` dropping one branch of the reverse pass.)
+    """
+    from mi_loop.arap import ARAP
+
+    mesh = bipyramid(6)
+    fid, uv = _samples(mesh.F, 80)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv, derivatives=False)
+    arap = ARAP(mesh.V * 0.9, mesh.F)
+    R = arap.rotations(mesh.V)
+
+    def grad(parts):
+        x = mi.Float(mesh.V.ravel().astype(np.float32))
+        dr.enable_grad(x)
+        E = mi.Float(0.0)
+        for part in parts:   # ARAP first: the order that lost the other branch
+            E = E + (arap.energy(x, R) if part == "arap" else dr.sum(dr.squared_norm(op.positions(x))))
+        dr.backward(E)
+        return np.array(dr.grad(x), dtype=np.float64)
+
+    g_arap, g_op, g_both = grad(["arap"]), grad(["op"]), grad(["arap", "op"])
+    np.testing.assert_allclose(g_both, g_arap + g_op, rtol=1e-4, atol=1e-4 * np.abs(g_op).max())
+
+
+def test_two_gather_chains_from_one_variable_are_summed():
+    """The Dr.Jit 1.5.0 behaviour that ``unravel_points`` works around, pinned down.
+
+    Two independent gather -> gather chains from the same AD variable: the sum
+    of their gradients is wrong in the z component unless the first gather is
+    shared. If a Dr.Jit upgrade fixes this, the first assertion fails and the
+    workaround can go.
+    """
+    rng = np.random.default_rng(0)
+    n = 50
+    V = rng.standard_normal((n, 3)).astype(np.float32)
+    idx = [mi.UInt32(rng.integers(0, n, k).astype(np.uint32)) for k in (200, 300)]
+
+    def grad(branches, share):
+        x = mi.Float(V.ravel())
+        dr.enable_grad(x)
+        shared = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, n))
+        E = mi.Float(0.0)
+        for b in branches:
+            src = shared if share else dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, n))
+            E = E + (b + 1) * dr.sum(dr.squared_norm(dr.gather(mi.Point3f, src, idx[b])))
+        dr.backward(E)
+        return np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+
+    for share in (False, True):
+        err = np.abs(grad([0, 1], share) - grad([0], share) - grad([1], share)).max(0)
+        if share:
+            assert err.max() < 1e-3, err
+        else:
+            assert err[2] > 1.0 and err[:2].max() < 1e-3, err

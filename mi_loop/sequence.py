@@ -1,0 +1,199 @@
+"""Frame-by-frame fitting of one control mesh to a deforming sequence, with multi-view rendering.
+
+Per frame ``t`` the control points minimise
+
+    E_t = mean_j f_t(Q_j)^2 + alpha E_arap(V; V_{t-1}) / n + beta l_image,
+
+``f_t`` the IMLS function of frame ``t``, ARAP relative to the previous frame's
+fit (warm start), and ``l_image`` the mean L1 (or L2) pixel difference over a
+random subset of the rig's views between ``direct_projective`` renders of the
+limit surface (the ``loop_subdiv`` shape, exact limit normals) and renders of
+the target frame. One ``dr.backward`` goes through the renderer, the limit
+operator and both geometric energies. No file I/O here.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+IMAGE_MODES = ("shading", "silhouette")
+LOSSES = ("l1", "l2")
+
+
+def rig_views(n_views: int):
+    """``n_views`` (azimuth, elevation) pairs in degrees spread over the whole sphere.
+
+    Fibonacci-sphere directions (y up), so every part of the subject is seen.
+    """
+    if n_views < 1:
+        raise ValueError(f"rig_views(): expected at least one view, got {n_views}")
+    i = np.arange(n_views) + 0.5
+    y = 1.0 - 2.0 * i / n_views
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    elevation = np.degrees(np.arcsin(np.clip(y, -1, 1)))
+    azimuth = np.degrees(phi) % 360.0
+    return [(float(a), float(e)) for a, e in zip(azimuth, elevation)]
+
+
+@dataclass
+class SequenceOptions:
+    """Parameters of :func:`fit_frame` (defaults tuned on 2 CPU cores)."""
+
+    alpha: float = 0.01          # ARAP weight
+    beta: float = 1.0            # image-loss weight
+    views: int = 20              # cameras in the rig
+    views_per_iteration: int = 2
+    resolution: int = 96
+    spp: int = 4                 # samples per pixel of the differentiable renders
+    target_spp: int = 32         # samples per pixel of the target renders
+    level: int = 1               # tessellation level of the rendered limit surface
+    loss: str = "l1"
+    mode: str = "shading"        # or 'silhouette'
+    geometric: bool = True       # IMLS + ARAP terms (False: image only, ARAP kept)
+    image: bool = True           # image term
+    geo_iterations: int = 60     # geometric-only warm-up iterations per frame
+    joint_iterations: int = 8    # iterations with the image term per frame
+    lr: float | None = None      # Adam step; default from the first frame's residual
+    seed: int = 0
+
+
+class Renderer:
+    """Prediction scene (``loop_subdiv``, ``direct_projective``) and target renders.
+
+    Parameters
+    ----------
+    V0, F : numpy arrays
+        Control mesh (normalised units) whose limit surface is rendered.
+    bbox : ((3,), (3,))
+        Box framing the subject for the whole sequence (fixed cameras).
+    options : SequenceOptions
+    """
+
+    def __init__(self, V0, F, bbox, options: SequenceOptions):
+        import mitsuba as mi
+
+        from .plugin import create
+        from .render import scene_dict
+
+        self.options = options
+        self.views = rig_views(options.views)
+        self.bbox = bbox
+        self._bsdf = self._material()
+        shape = create(V0, F, level=options.level, bsdf=mi.load_dict(self._bsdf))
+        self.scene = mi.load_dict(self._scene_dict(shape, {"type": "direct_projective", "sppi": 0}))
+        self.params = mi.traverse(self.scene)
+        self.key = next(k for k in self.params.keys() if k.endswith("control_points"))
+        self.params.keep([self.key])
+
+    def _material(self):
+        if self.options.mode == "silhouette":   # black object against a white environment
+            return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+        return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.6, 0.6, 0.6]}}
+
+    def _scene_dict(self, shape, integrator):
+        from .render import scene_dict
+
+        desc = scene_dict(shape, views=self.views, resolution=self.options.resolution,
+                          integrator=integrator, sample_border=True, bbox=self.bbox)
+        if self.options.mode == "silhouette":
+            desc.pop("key_light", None)
+        return desc
+
+    def targets(self, V, F, normals=None):
+        """Render a target frame (a triangle mesh) from every view; list of ``mi.TensorXf``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        from .plugin import plain_mesh
+
+        mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(self._bsdf))
+        scene = mi.load_dict(self._scene_dict(mesh, {"type": "direct"}))
+        images = []
+        for k in range(len(self.views)):
+            img = mi.render(scene, spp=self.options.target_spp, seed=10_000 + k, sensor=k)
+            dr.eval(img)
+            images.append(img)
+        return images
+
+    def loss(self, x, view_ids, targets, seed: int):
+        """Image loss of control points ``x`` (differentiable), averaged over ``view_ids``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        self.params[self.key] = x
+        self.params.update()
+        total = mi.Float(0.0)
+        for k in view_ids:
+            img = mi.render(self.scene, self.params, spp=self.options.spp,
+                            seed=int(seed) * 997 + int(k), sensor=int(k))
+            diff = img - targets[k]
+            term = dr.abs(diff) if self.options.loss == "l1" else dr.square(diff)
+            total = total + dr.mean(term.array)
+        return total / len(view_ids)
+
+
+def vertex_normals(V, F):
+    """Area-weighted vertex normals of a triangle mesh, ``(n, 3)``."""
+    Fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N = np.zeros_like(V)
+    for c in range(3):
+        np.add.at(N, F[:, c], Fn)
+    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-30)
+
+
+def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOptions,
+              frame: int, lr: float, progress=None):
+    """Fit one frame from the control points ``x0`` (normalised ``(n, 3)``); returns ``(V, info)``.
+
+    ``targets`` are the target renders (None without the image term).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from .arap import ARAP
+    from .imls import IMLS
+
+    n = len(x0)
+    arap = ARAP(x0, F)                 # rest = previous frame's fit
+    imls = IMLS(points, normals) if options.geometric else None
+    alpha_t = dr.opaque(mi.Float, options.alpha / n)
+    beta_t = dr.opaque(mi.Float, options.beta)
+    rng = np.random.default_rng([options.seed, frame])
+    opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
+    use_image = options.image and targets is not None
+    n_geo = options.geo_iterations if options.geometric else 0
+    n_joint = options.joint_iterations if use_image else 0
+    history = {"geo": [], "image": []}
+    t_render = 0.0
+    for it in range(n_geo + n_joint):
+        x = opt["x"]
+        Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
+        E = alpha_t * arap.energy(x, arap.rotations(Vn))
+        if imls is not None:
+            Q = op.positions(x)
+            if it % 10 == 0:
+                imls.update(np.array(Q, dtype=np.float64).T)
+            E = E + imls.energy(Q, reduce="mean")
+        geo = float(E[0])
+        image = np.nan
+        if it >= n_geo:
+            t = time.perf_counter()
+            views = rng.choice(len(renderer.views), options.views_per_iteration, replace=False)
+            L = renderer.loss(x, views, targets, seed=frame * 1000 + it)
+            E = E + beta_t * L
+            image = float(L[0])
+            dr.backward(E)
+            t_render += time.perf_counter() - t
+        else:
+            dr.backward(E)
+        if not np.isfinite(float(E[0])):
+            raise FloatingPointError(f"fit_frame(): non-finite energy at frame {frame}, iteration {it}")
+        history["geo"].append(geo)
+        history["image"].append(image)
+        opt.step()
+        if progress is not None:
+            progress(it + 1, n_geo + n_joint)
+    V = np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
+    return V, {"history": history, "time_render": t_render, "iterations": n_geo + n_joint}
