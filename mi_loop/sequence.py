@@ -55,7 +55,7 @@ class SequenceOptions:
     image: bool = True           # image term
     geo_iterations: int = 60     # geometric-only warm-up iterations per frame
     joint_iterations: int = 8    # iterations with the image term per frame
-    lr: float | None = None      # Adam step; default from the first frame's residual
+    joint_lr_scale: float = 0.3  # step of the joint iterations relative to the geometric ones
     seed: int = 0
 
 
@@ -161,6 +161,11 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
     beta_t = dr.opaque(mi.Float, options.beta)
     rng = np.random.default_rng([options.seed, frame])
+    if imls is not None:
+        # Step from the residual of the warm start (as in static fitting), capped by lr.
+        Q0 = op.positions(mi.Float(x0.ravel().astype(np.float32)))
+        imls.update(np.array(Q0, dtype=np.float64).T)
+        lr = float(np.clip(np.sqrt(float(imls.energy(Q0, reduce="mean")[0])) / 3.0, 1e-2 * lr, lr))
     opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
     use_image = options.image and targets is not None
     n_geo = options.geo_iterations if options.geometric else 0
@@ -178,6 +183,8 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
             E = E + imls.energy(Q, reduce="mean")
         geo = float(E[0])
         image = np.nan
+        if it == n_geo and n_geo:
+            opt.set_learning_rate(options.joint_lr_scale * lr)   # noisy image gradients: smaller steps
         if it >= n_geo:
             t = time.perf_counter()
             views = rng.choice(len(renderer.views), options.views_per_iteration, replace=False)
