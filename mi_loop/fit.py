@@ -167,6 +167,7 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
     t_all = time.perf_counter()
     timings = {}
     P, N = _check_points(points, normals)
+    _check_parameters(template, alpha, max_iterations, tolerance, samples)
     norm = Normalisation.of(P)
     Pn = norm.forward(P)
 
@@ -203,6 +204,21 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
               "iterations": len(history["total"]), "normalisation_scale": norm.scale}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
                      {"template": tinfo})
+
+
+def _check_parameters(template, alpha, max_iterations, tolerance, samples):
+    if template is not None and not (isinstance(template, (tuple, list)) and len(template) == 2):
+        raise ValueError("fit(): template must be a pair (V, F) of control points and faces, got "
+                         f"{type(template).__name__}")
+    if alpha is not None and not (np.isfinite(alpha) and alpha >= 0):
+        raise ValueError(f"fit(): alpha must be a finite number >= 0, got {alpha}")
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) \
+            or max_iterations < 1:
+        raise ValueError(f"fit(): max_iterations must be an integer >= 1, got {max_iterations!r}")
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"fit(): tolerance must be a finite number >= 0, got {tolerance}")
+    if samples not in SAMPLE_MODES:
+        raise ValueError(f"fit(): samples must be one of {SAMPLE_MODES}, got {samples!r}")
 
 
 def _check_points(points, normals):

@@ -1,7 +1,8 @@
 """The ``mi-loop fit`` and ``mi-loop compare`` jobs: read, fit, measure, draw, write.
 
-Everything is computed before the first output file is written, and each file
-is written atomically, so a failed or interrupted run leaves no partial output.
+Everything is computed before the first output file is written; the files are
+written into a staging directory and moved into place together, so a failed or
+interrupted run leaves no partial output (and removes the directories it created).
 """
 from __future__ import annotations
 
@@ -36,15 +37,15 @@ def _progress(quiet: bool):
         return None, lambda: None
     from tqdm import tqdm
 
-    bar = tqdm(total=None, desc="fitting", unit="it", leave=False, dynamic_ncols=True)
+    bars = []   # created at the first iteration, so early errors print one line only
 
     def update(i, total, energy):
-        bar.total = total
-        bar.n = i
-        bar.set_postfix_str(f"E={energy:.3e}", refresh=False)
-        bar.refresh()
+        if not bars:
+            bars.append(tqdm(total=total, desc="fitting", unit="it", leave=False, dynamic_ncols=True))
+        bars[0].set_postfix_str(f"E={energy:.3e}", refresh=False)
+        bars[0].update(i - bars[0].n)
 
-    return update, bar.close
+    return update, lambda: bars and bars[0].close()
 
 
 def run(args, start, say):
@@ -72,7 +73,7 @@ def run(args, start, say):
         V_t, F_t = io.read_mesh(args.template)
         validate_mesh(V_t, F_t, f"--template {args.template}")
         template = (V_t, F_t)
-    existed = args.output.exists()
+    created = io.first_missing_ancestor(args.output)
     out = io.ensure_writable_dir(args.output)
     try:
         set_variant("llvm_ad_rgb")
@@ -101,15 +102,16 @@ def run(args, start, say):
                   "params": result.params, "timings_s": result.timings, "metrics": metrics,
                   "template": result.info["template"], "machine": platform.node(),
                   "final_energy": {k: result.history[k][-1] for k in ("imls", "arap", "total")}}
+        with io.staged_outputs(out) as stage:
+            io.write_ply(stage / "control.ply", result.V, result.F)
+            io.write_ply(stage / "limit.ply", V_lim, F_lim, normals=N_lim)
+            io.write_text(stage / "report.json", json.dumps(_plain(report), indent=2) + "\n")
+            io.write_png(stage / "loss.png", loss)
+            io.write_png(stage / "render.png", render)
     except BaseException:
-        if not existed and not any(out.iterdir()):
-            out.rmdir()
+        io.remove_if_empty(created, out)
         raise
-    return [io.write_ply(out / "control.ply", result.V, result.F),
-            io.write_ply(out / "limit.ply", V_lim, F_lim, normals=N_lim),
-            io.write_text(out / "report.json", json.dumps(_plain(report), indent=2) + "\n"),
-            io.write_png(out / "loss.png", loss),
-            io.write_png(out / "render.png", render)]
+    return [out / name for name in ("control.ply", "limit.ply", "report.json", "loss.png", "render.png")]
 
 
 def _plain(x):

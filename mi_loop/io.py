@@ -68,6 +68,48 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
+def first_missing_ancestor(path) -> Path | None:
+    """The outermost directory of ``path`` (itself included) that does not exist yet, or None."""
+    path = Path(path).absolute()
+    missing = None
+    for p in [path, *path.parents]:
+        if p.exists():
+            break
+        missing = p
+    return missing
+
+
+def remove_if_empty(top: Path | None, path) -> None:
+    """Remove ``path`` and its parents up to ``top`` when they are empty (after a failed run)."""
+    if top is None:
+        return
+    path = Path(path).absolute()
+    for p in [path, *path.parents]:
+        with contextlib.suppress(OSError):
+            p.rmdir()
+        if p == top:
+            break
+
+
+@contextlib.contextmanager
+def staged_outputs(outdir):
+    """Yield a hidden staging directory in ``outdir``; on success move its files into ``outdir``.
+
+    All outputs of a run appear together (each move is atomic); on failure the
+    staging directory is removed and ``outdir`` keeps what it had.
+    """
+    import shutil
+
+    outdir = Path(outdir)
+    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=outdir))
+    try:
+        yield stage
+        for f in sorted(stage.iterdir()):
+            os.replace(f, outdir / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 def ensure_writable_dir(path) -> Path:
     """Create a directory if needed and check that files can be created in it.
 

@@ -29,7 +29,7 @@ def _csr_to_padded(M: sp.csr_matrix):
     return idx, W
 
 
-_UNRAVELLED: list = [None, None]  # [x, Point3f of x]: the last variable unravelled
+_UNRAVELLED: list = [None, None, None]  # [(index, index_ad), handle, Point3f]: last variable
 
 
 def unravel_points(x):
@@ -41,16 +41,17 @@ def unravel_points(x):
     arrays that are gathered again, the reverse pass mis-accumulates the third
     component (reproduced in ``tests/test_operator.py``). Sharing one
     intermediate avoids it. The cached variable is held, so its index cannot be
-    reused by another array while cached.
+    reused by another array while cached (a separate handle is held: the
+    caller's Python object may later be assigned new contents in place).
     """
     import drjit as dr
     import mitsuba as mi
 
-    last, points = _UNRAVELLED
-    if last is not None and last.index == x.index and last.index_ad == x.index_ad:
-        return points
+    key = (x.index, x.index_ad)
+    if _UNRAVELLED[0] == key:
+        return _UNRAVELLED[2]
     points = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, dr.width(x) // 3))
-    _UNRAVELLED[:] = [x, points]
+    _UNRAVELLED[:] = [key, type(x)(x), points]
     return points
 
 

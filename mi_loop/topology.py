@@ -12,7 +12,8 @@ import numpy as np
 
 
 def _fail(func: str, message: str):
-    raise ValueError(f"{func}(): {message}")
+    where = f"{func}()" if func.isidentifier() or "." in func and func.replace(".", "").isidentifier() else func
+    raise ValueError(f"{where}: {message}")
 
 
 @dataclass
