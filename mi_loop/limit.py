@@ -196,33 +196,37 @@ def _irregular_rows(h, faces, uv, derivative):
 
 
 def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
-    """Padded rows ``[(idx (k, w), W (k, w)), ...]`` over level-L vertices, one per derivative."""
+    """Padded rows ``[(idx (k, w), W (k, w)), ...]`` over level-L vertices, one per derivative.
+
+    The index array does not depend on the derivative and is shared by all
+    returned pairs.
+    """
     faces, uvL, sign = map_to_level(h, face_ids, uv)
     reg = h.irr_corner[faces] < 0
     ri, ii = np.flatnonzero(reg), np.flatnonzero(~reg)
-    all_regular = len(ii) == 0
+    if len(ii) == 0:
+        idx = h.reg_P[faces].astype(np.int32)
+        return [(idx, np.ascontiguousarray(_regular_rows(h, faces, uvL, d)[1])
+                 * (sign[:, None] if d is not None else 1.0)) for d in derivatives]
+    K = max(len(h.locals[q].pi) for q in np.unique(h.irr_sig[faces[ii]]))
+    width = max(12, K)
+    # Regular block then irregular block, padded to one width; one row gather
+    # (the inverse permutation) puts them back in sample order.
+    inverse = np.empty(len(faces), dtype=np.int64)
+    inverse[np.concatenate([ri, ii])] = np.arange(len(faces))
+    idx = np.zeros((len(faces), width), dtype=np.int32)
+    idx[:len(ri), :12] = h.reg_P[faces[ri]]
+    idx[len(ri):, :K] = h.irr_P[faces[ii]][:, :K]
+    idx = idx[inverse]
     out = []
     for d in derivatives:
-        if all_regular:
-            idx, W = _regular_rows(h, faces, uvL, d)
-            W = np.ascontiguousarray(W)
-        else:
-            # Regular block then irregular block, padded to one width, then
-            # one row gather back to sample order.
-            i_r, w_r = _regular_rows(h, faces[ri], uvL[ri], d)
-            i_i, w_i = _irregular_rows(h, faces[ii], uvL[ii], d)
-            width = max(12, i_i.shape[1])
-            pad = ((0, 0), (0, width - 12))
-            idx = np.concatenate([np.pad(i_r, pad), i_i])
-            W = np.concatenate([np.pad(w_r, pad), w_i])
-            inverse = np.empty(len(faces), dtype=np.int64)
-            inverse[np.concatenate([ri, ii])] = np.arange(len(faces))
-            idx, W = idx[inverse], W[inverse]
+        W = np.zeros((len(faces), width))
+        W[:len(ri), :12] = _regular_rows(h, faces[ri], uvL[ri], d)[1]
+        W[len(ri):, :K] = _irregular_rows(h, faces[ii], uvL[ii], d)[1][:, :K]
+        W = W[inverse]
         if d is not None:
             W *= sign[:, None]
-        nz = np.flatnonzero((W != 0).any(0))
-        used = int(nz.max()) + 1 if len(nz) else 1
-        out.append((idx[:, :used], W[:, :used]))
+        out.append((idx, W))
     return out
 
 

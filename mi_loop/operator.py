@@ -68,12 +68,19 @@ class _Padded:
         self.idx = mi.UInt32(np.ascontiguousarray(idx, dtype=np.uint32).ravel())
         self.w = mi.Float(np.ascontiguousarray(W, dtype=np.float32).ravel())
 
-    def apply(self, x):
-        """``x``: ``mi.Point3f`` or ``mi.Vector3f``; returns the same type, length ``rows``."""
+    def apply(self, x, expand: bool = False):
+        """``x``: ``mi.Point3f`` or ``mi.Vector3f``; returns the same type, length ``rows``.
+
+        ``expand``: the reverse pass accumulates into per-thread copies of ``x``
+        (``dr.ReduceMode.Expand``) instead of atomics; for a small ``x`` that
+        only this operator gathers from (Dr.Jit forbids mixing reduction modes
+        on one target).
+        """
         import drjit as dr
 
         cls = type(x)
-        terms = self.w * dr.gather(cls, x, self.idx)
+        mode = dr.ReduceMode.Expand if expand else dr.ReduceMode.Auto
+        terms = self.w * dr.gather(cls, x, self.idx, mode=mode)
         return cls(*(dr.block_sum(terms[c], self.shape[1]) for c in range(3)))
 
 
@@ -171,15 +178,15 @@ class LimitOperator:
             raise ValueError("LimitOperator.evaluate(): built with derivatives=False")
         dev = self._dev()
         xL = dev["S"].apply(self._points(x))
-        P = dev[None].apply(xL)
-        du = dev["u"].apply(mi.Vector3f(xL))
-        dv = dev["v"].apply(mi.Vector3f(xL))
+        P = dev[None].apply(xL, expand=True)
+        du = dev["u"].apply(mi.Vector3f(xL), expand=True)
+        dv = dev["v"].apply(mi.Vector3f(xL), expand=True)
         return P, du, dv
 
     def positions(self, x):
         """Limit points ``mi.Point3f (k)`` of control points ``x`` (see :meth:`evaluate`)."""
         dev = self._dev()
-        return dev[None].apply(dev["S"].apply(self._points(x)))
+        return dev[None].apply(dev["S"].apply(self._points(x)), expand=True)
 
     def normals(self, x):
         """Unit limit normals ``mi.Normal3f (k)``, ``normalize(cross(du, dv))``."""
