@@ -55,6 +55,11 @@ def unravel_points(x):
     return points
 
 
+def forget_unravelled() -> None:
+    """Drop the cached unravelled array (before building a new graph from the same variable)."""
+    _UNRAVELLED[:] = [None, None, None]
+
+
 class _Padded:
     """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``.
 

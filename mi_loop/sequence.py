@@ -8,8 +8,11 @@ Per frame ``t`` the control points minimise
 fit (warm start), and ``l_image`` the mean L1 (or L2) pixel difference over a
 random subset of the rig's views between ``direct_projective`` renders of the
 limit surface (the ``loop_subdiv`` shape, exact limit normals) and renders of
-the target frame. One ``dr.backward`` goes through the renderer, the limit
-operator and both geometric energies. No file I/O here.
+the target frame. Gradients of all terms accumulate into the same control
+points through the renderer, the limit operator and both geometric energies
+(one reverse pass for the geometric terms and one per rendered view, because
+Mitsuba's render releases the geometry's graph in its reverse pass). No file
+I/O here.
 """
 from __future__ import annotations
 
@@ -117,21 +120,46 @@ class Renderer:
             images.append(img)
         return images
 
-    def loss(self, x, view_ids, targets, seed: int):
-        """Image loss of control points ``x`` (differentiable), averaged over ``view_ids``."""
+    def view_loss(self, x, k: int, targets, seed: int):
+        """Image loss of control points ``x`` in view ``k`` (differentiable, ``mi.Float (1)``)."""
         import drjit as dr
         import mitsuba as mi
 
+        from .operator import forget_unravelled
+
+        forget_unravelled()   # this view's geometry gets a graph of its own
         self.params[self.key] = x
+        self.params.set_dirty(self.key)
         self.params.update()
-        total = mi.Float(0.0)
+        img = mi.render(self.scene, self.params, spp=self.options.spp,
+                        seed=int(seed) * 997 + int(k), sensor=int(k))
+        diff = img - targets[k]
+        term = dr.abs(diff) if self.options.loss == "l1" else dr.square(diff)
+        return dr.mean(term.array)
+
+    def backward(self, x, view_ids, targets, seed: int, weight=1.0) -> float:
+        """Accumulate ``weight * mean_k l_k`` gradients into ``x``; return the mean loss.
+
+        One backward pass per view: Mitsuba's differentiable render releases
+        the geometry's AD graph (vertex positions back to ``x``) during its
+        reverse pass, so a second view in the same pass would stop at the
+        vertex positions (checked in ``tests/test_sequence.py``).
+        """
+        import drjit as dr
+
+        total = 0.0
         for k in view_ids:
-            img = mi.render(self.scene, self.params, spp=self.options.spp,
-                            seed=int(seed) * 997 + int(k), sensor=int(k))
-            diff = img - targets[k]
-            term = dr.abs(diff) if self.options.loss == "l1" else dr.square(diff)
-            total = total + dr.mean(term.array)
+            L = self.view_loss(x, k, targets, seed)
+            total += float(L[0])
+            dr.backward(L * (weight / len(view_ids)))
         return total / len(view_ids)
+
+    def loss(self, x, view_ids, targets, seed: int):
+        """Mean image loss over ``view_ids`` (value only; see :meth:`backward` for gradients)."""
+        import drjit as dr
+
+        with dr.suspend_grad():
+            return sum(float(self.view_loss(x, k, targets, seed)[0]) for k in view_ids) / len(view_ids)
 
 
 def vertex_normals(V, F):
@@ -159,7 +187,6 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     arap = ARAP(x0, F)                 # rest = previous frame's fit
     imls = IMLS(points, normals) if options.geometric else None
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
-    beta_t = dr.opaque(mi.Float, options.beta)
     rng = np.random.default_rng([options.seed, frame])
     if imls is not None:
         # Step from the residual of the warm start (as in static fitting), capped by lr.
@@ -185,17 +212,13 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
         image = np.nan
         if it == n_geo and n_geo:
             opt.set_learning_rate(options.joint_lr_scale * lr)   # noisy image gradients: smaller steps
+        dr.backward(E)
         if it >= n_geo:
             t = time.perf_counter()
             views = rng.choice(len(renderer.views), options.views_per_iteration, replace=False)
-            L = renderer.loss(x, views, targets, seed=frame * 1000 + it)
-            E = E + beta_t * L
-            image = float(L[0])
-            dr.backward(E)
+            image = renderer.backward(x, views, targets, seed=frame * 1000 + it, weight=options.beta)
             t_render += time.perf_counter() - t
-        else:
-            dr.backward(E)
-        if not np.isfinite(float(E[0])):
+        if not np.isfinite(geo) or not np.isfinite(image if it >= n_geo else 0.0):
             raise FloatingPointError(f"fit_frame(): non-finite energy at frame {frame}, iteration {it}")
         history["geo"].append(geo)
         history["image"].append(image)

@@ -83,7 +83,10 @@ def run(args, start, say):
             say(f"template: screened Poisson + decimation to {args.vertices} vertices", start)
             x, F, _ = make_template(norm.forward(first[1]), first[2], args.vertices, seed=args.seed)
         lr = 0.02 * _mean_edge(x, F)
+        lo, hi = x.min(0), x.max(0)
+        pad = 0.15 * (hi - lo).max()
         state = {"centre": norm.centre.tolist(), "scale": norm.scale, "lr": lr,
+                 "camera_box": [(lo - pad).tolist(), (hi + pad).tolist()],
                  "options": asdict(options), "n_frames": len(frames)}
         io.write_text(state_path, json.dumps(state, indent=2) + "\n")
         rows, done = [], -1
@@ -93,10 +96,9 @@ def run(args, start, say):
     fid, uv = sample_parameters(F, len(x), "vertices")
     op = LimitOperator(F, len(x), fid, uv, derivatives=False)
     renderer = None
-    if options.image:
-        lo, hi = x.min(0), x.max(0)
-        pad = 0.15 * (hi - lo).max()
-        renderer = Renderer(x, F, (lo - pad, hi + pad), options)
+    if options.image:   # cameras fixed for the whole run (resume included): stored box
+        box = tuple(np.asarray(c) for c in state["camera_box"])
+        renderer = Renderer(x, F, box, options)
     say(f"{len(frames)} frames, {len(x)} control vertices, image term "
         f"{'on (' + options.mode + ', ' + str(options.views) + ' views)' if options.image else 'off'}", start)
     for t in range(done + 1, len(frames)):
