@@ -128,10 +128,10 @@ def fit_options(p):
     group.add_argument("--vertices", type=int, default=1000,
                        help="control vertices of the automatic template (default 1000)")
     group.add_argument("--template", type=Path, help="control mesh to start from instead")
-    p.add_argument("--alpha", type=float, help="ARAP weight (default 0.01)")
+    p.add_argument("--alpha", type=float, help="ARAP weight (default 0.001; raise it for noisy data)")
     p.add_argument("--h0", type=float, help="IMLS radius in the unit box (default: from point spacing)")
-    p.add_argument("--samples", choices=["vertices", "level1", "random"], default="vertices",
-                   help="limit samples in the distance term (default: one per control vertex)")
+    p.add_argument("--samples", choices=["vertices", "level1", "random"], default="level1",
+                   help="limit samples: level-1 tessellation points (default) or one per control vertex")
     p.add_argument("--iterations", type=_positive, default=400, help="iteration cap (default 400)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bar")

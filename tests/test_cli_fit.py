@@ -70,7 +70,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     assert report["input_info"]["n_points"] == 20200                         # 20000 + 1 % outliers
     params = report["params"]
     assert params["max_iterations"] == 60 and 1 <= params["iterations"] <= 60
-    assert params["samples"] == "vertices" and params["alpha"] == 0.01 and params["seed"] == 0
+    assert params["samples"] == "level1" and params["alpha"] == 0.001 and params["seed"] == 0
     assert abs(params["n_vertices"] - 100) <= 10
     assert set(report["timings_s"]) >= {"template", "operator", "energies", "optimisation", "total",
                                          "metrics", "pictures"}

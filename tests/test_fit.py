@@ -88,8 +88,9 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
     np.testing.assert_allclose(result.V_template, V0, rtol=1e-12, atol=1e-12)
     assert result.info["template"] == {"source": "user"}
     assert result.params["n_vertices"] == len(V0) and result.params["n_faces"] == len(F0)
-    assert result.params["samples"] == "vertices" and result.params["n_samples"] == len(V0)
-    assert result.params["alpha"] == 0.01
+    n_level1 = len(tessellate(F, 1)[1])   # default samples: the level-1 tessellation points
+    assert result.params["samples"] == "level1" and result.params["n_samples"] == n_level1
+    assert result.params["alpha"] == 0.001
 
     e_fit = sphere_error(limit_points(result.V, F0)[0])
     e_tpl = sphere_error(limit_points(V0, F0)[0])
