@@ -88,7 +88,7 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
     np.testing.assert_allclose(result.V_template, V0, rtol=1e-12, atol=1e-12)
     assert result.info["template"] == {"source": "user"}
     assert result.params["n_vertices"] == len(V0) and result.params["n_faces"] == len(F0)
-    n_level1 = len(tessellate(F, 1)[1])   # default samples: the level-1 tessellation points
+    n_level1 = len(tessellate(F0, 1)[1])  # default samples: the level-1 tessellation points
     assert result.params["samples"] == "level1" and result.params["n_samples"] == n_level1
     assert result.params["alpha"] == 0.001
 
