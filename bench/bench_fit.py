@@ -52,8 +52,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-SCAN = Path("/work/shared/data/scans/bunny_rangescans_merged_stride3.ply")
-STATIC = Path("/work/shared/data/static")
+SHARED = ROOT.parent / "shared" / "data"
+SCAN = SHARED / "scans" / "bunny_rangescans_merged_stride3.ply"
+STATIC = SHARED / "static"
 NPS_TABLE1 = {"bunny": (1.347, 15.971, 5.39), "fandisk": (0.572, 8.743, 1.79)}  # P2S, HD (x1e-3), NAE (deg)
 STAGES = ("template", "operator", "energies", "optimisation", "total")
 SHORT = {"max_iterations": "max_it"}                   # fit() keyword -> table label
@@ -167,13 +168,13 @@ def bench_scan(args, out: list) -> None:
         poisson = distances("Poisson depth 8", Vp, Fp, f"{len(Vp)} vertices")
 
     configs = []                                 # (n, level, samples, {h0, alpha, tolerance}, runs)
-    for n, level in sizes:
-        configs.append((n, level, "vertices", {}, args.runs))
-        configs += [(n, level, "vertices", {"tolerance": t}, 1) for t in args.tolerance if n == 4667]
-        configs += [(n, level, "vertices", {"max_iterations": k}, 1) for k in args.max_iterations]
+    for n, level in sizes:                      # package defaults: level-1 samples, alpha 0.001
+        configs.append((n, level, "level1", {}, args.runs))
+        configs += [(n, level, "level1", {"tolerance": t}, 1) for t in args.tolerance if n == 4667]
+        configs += [(n, level, "level1", {"max_iterations": k}, 1) for k in args.max_iterations]
         if args.quick:
             continue
-        configs.append((n, level, "level1", {}, 1))
+        configs.append((n, level, "vertices", {}, 1))
         configs += [(n, level, "vertices", {"h0": h0}, 1) for h0 in args.h0 if n == 4667]
         configs += [(n, level, smp, {"alpha": a}, 1) for a in args.alpha for smp in ("vertices", "level1")]
     for n, level, samples, extra, runs in configs:
@@ -186,7 +187,7 @@ def bench_scan(args, out: list) -> None:
                            + [f"{min(times['total']):.2f} / {med['total']:.2f} / {max(times['total']):.2f}",
                               ", ".join(map(str, times["iterations"])),
                               f"{1e3 * med['optimisation'] / s['iterations']:.0f} ms/it, h0 {s['h0']:.4g}"])
-        if samples == "vertices" and not extra:
+        if samples == "level1" and not extra:
             V_lim, F_lim = limit_surface(r.V_template, r.F, level, cache)
             distances(f"{n} template (no fit), level {level}", V_lim, F_lim)
         V_lim, F_lim = limit_surface(r.V, r.F, level, cache)

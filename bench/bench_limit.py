@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-ARMADILLO = Path("/work/shared/data/static/armadillo.obj")
+ARMADILLO = Path(__file__).resolve().parents[2] / "shared" / "data" / "static" / "armadillo.obj"
 
 
 # -- helpers -------------------------------------------------------------------
