@@ -29,7 +29,7 @@ Three parts, each printing Markdown tables:
 
 Usage::
 
-    cd /work/main
+    cd <repository root>
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py all            # 5-8 min on 2 cores
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py scan --runs 3 --h0 0.005 0.0005
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py nps

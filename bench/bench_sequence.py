@@ -21,7 +21,7 @@ Two parts, each printing Markdown tables:
 
 Usage::
 
-    cd /work/main
+    cd <repository root>
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py fit            # both sequences, 3 configs
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py fit --seq spot --frames 4 --configs image \\
         --extra="--beta 4"                                               # a settings sweep point
@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-SEQ = Path("/work/shared/data/sequences")
+SEQ = Path(__file__).resolve().parents[2] / "shared" / "data" / "sequences"
 RESULTS = ROOT / "bench" / "results" / "sequence"
 SEQUENCES = {"spot": ("spot_arap_16f.npz", 1000), "fox": ("fox_walk_24f.npz", 600)}
 CONFIGS = {"imls": ["--no-image"], "image": [], "dr": ["--image-only"]}

@@ -35,7 +35,7 @@ from mi_loop.metrics import two_sided
 from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
 
 OUT = Path(__file__).resolve().parent.parent / "out"
-TARGET = Path("/work/shared/data/static/spot.obj")
+TARGET = Path(__file__).resolve().parents[2] / "shared" / "data" / "static" / "spot.obj"
 ITERATIONS, LR, LR_FINAL = 400, 0.02, 0.002   # Adam steps; step sizes in units of the bbox diagonal
 ALPHA, REST_EVERY = 0.1, 20                    # ARAP weight (per control point); rest-shape reset period
 OPTIONS = SequenceOptions(views=16, views_per_iteration=2, resolution=128, spp=4, level=2, loss="l1")
