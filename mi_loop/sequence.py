@@ -59,6 +59,7 @@ class SequenceOptions:
     geo_iterations: int = 60     # geometric-only warm-up iterations per frame
     joint_iterations: int = 8    # iterations with the image term per frame
     joint_lr_scale: float = 0.3  # step of the joint iterations relative to the geometric ones
+    stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
     seed: int = 0
 
 
@@ -202,7 +203,12 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     for it in range(n_geo + n_joint):
         x = opt["x"]
         Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
-        E = alpha_t * arap.energy(x, arap.rotations(Vn))
+        # Stiff-to-soft: the first half of the geometric iterations weigh ARAP
+        # (relative to the previous frame) by stiff_factor, so parts that moved
+        # far (thin horns, legs) follow the bulk as near-rigid pieces instead of
+        # snapping onto the nearest surface; the second half fits details.
+        stiff = it < n_geo // 2 and options.stiff_factor > 1
+        E = (alpha_t * options.stiff_factor if stiff else alpha_t) * arap.energy(x, arap.rotations(Vn))
         if imls is not None:
             Q = op.positions(x)
             if it % 10 == 0:
