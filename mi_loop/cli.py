@@ -100,7 +100,7 @@ def _parser() -> argparse.ArgumentParser:
     seq.add_argument("--loss", choices=["l1", "l2"], default="l1")
     seq.add_argument("--mode", choices=["shading", "silhouette"], default="shading",
                      help="shaded images (default) or silhouettes only")
-    seq.add_argument("--iterations", type=_positive, default=60, help="geometric iterations per frame (default 60)")
+    seq.add_argument("--iterations", type=_positive, default=200, help="geometric iterations per frame (default 200)")
     seq.add_argument("--image-iterations", type=_positive, default=8,
                      help="iterations with the image term per frame (default 8)")
     seq.add_argument("--points", type=_positive, default=20_000, help="points sampled per mesh frame")

@@ -56,7 +56,7 @@ class SequenceOptions:
     mode: str = "shading"        # or 'silhouette'
     geometric: bool = True       # IMLS + ARAP terms (False: image only, ARAP kept)
     image: bool = True           # image term
-    geo_iterations: int = 60     # geometric-only warm-up iterations per frame
+    geo_iterations: int = 200    # geometric iterations per frame (first half with stiff ARAP)
     joint_iterations: int = 8    # iterations with the image term per frame
     joint_lr_scale: float = 0.3  # step of the joint iterations relative to the geometric ones
     stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
