@@ -58,7 +58,7 @@ class SequenceOptions:
     image: bool = True           # image term
     geo_iterations: int = 200    # geometric iterations per frame (first half with stiff ARAP)
     joint_iterations: int = 8    # iterations with the image term per frame
-    joint_lr_scale: float = 0.3  # step of the joint iterations relative to the geometric ones
+    joint_lr_scale: float = 0.05  # step of the joint iterations relative to the geometric ones
     stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
     seed: int = 0
 
