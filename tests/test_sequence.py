@@ -306,11 +306,11 @@ def interrupt_at_frame(monkeypatch, frame):
 
 def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_run, tmp_path,
                                                             monkeypatch, capsys):
-    """IMLS + ARAP only is deterministic (repeated runs are bit-identical), so the resumed run
-    must reproduce the uninterrupted one. Frames 0-1 come from the same code path: equal.
-    Frame 2 starts from control/0001.ply, i.e. world coordinates mapped back to the unit box
-    in float64 and then cast to float32: one float32 ulp can flip (measured 6e-8 at coordinates
-    ~1); tolerance 1e-6 of the sequence's extent (~2.2)."""
+    """IMLS + ARAP only: the resumed run must reproduce the uninterrupted one. Not bit for
+    bit: the reverse passes sum in parallel (two threads, float32), so repeated runs differ by
+    a few float32 ulps (measured 2.5e-8 at coordinates ~1), and frame 2 starts from
+    control/0001.ply (world coordinates mapped back to the unit box, cast to float32).
+    Tolerance 1e-6 of the sequence's extent (~2.2), 40x the measured difference."""
     out = tmp_path / "out"
     interrupt_at_frame(monkeypatch, 2)
     assert main(argv(inputs, out, "--no-image")) == 130
@@ -325,7 +325,7 @@ def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_ru
         V, F = io.read_mesh(out / "control" / f"{t:04d}.ply")
         V_ref, F_ref = io.read_mesh(geometric_run / "control" / f"{t:04d}.ply")
         np.testing.assert_array_equal(F, F_ref)
-        np.testing.assert_allclose(V, V_ref, rtol=0, atol=0 if t < 2 else 1e-6 * extent)
+        np.testing.assert_allclose(V, V_ref, rtol=0, atol=1e-6 * extent)
 
 
 def spy_on_camera_boxes(monkeypatch, boxes):
