@@ -174,6 +174,12 @@ def _pictures(out, rows, frames, norm, F, args):
         name, X, Ft, N = frames[int(rows[i][0])]()
         target = ("mesh", X, Ft) if Ft is not None else ("points", X, N)
         V, _ = io.read_mesh(out / "control" / f"{int(rows[i][0]):04d}.ply")
-        strips.append(side_by_side(target, V, F, resolution=200, spp=16))
-    paths.append(io.write_png(out / "strip.png", np.concatenate(strips, axis=0)))
+        strips.append((int(rows[i][0]), float(rows[i][2]), side_by_side(target, V, F, resolution=200, spp=16)))
+    fig, axes = plt.subplots(len(strips), 1, figsize=(4.0, 2.1 * len(strips)), dpi=100, squeeze=False)
+    for ax, (t, mean, image) in zip(axes[:, 0], strips):
+        ax.imshow(image)
+        ax.set_axis_off()
+        ax.set_title(f"frame {t}: target (left), fit (right); mean {mean:.1e}", fontsize=8)
+    fig.tight_layout()
+    paths.append(io.write_png(out / "strip.png", figure_pixels(fig)))
     return paths
