@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .masks import _CORNER_UV
+from .masks import limit_mesh, vertex_samples
 from .tessellation import tessellate
 from .topology import validate_mesh
 
@@ -75,14 +75,7 @@ class FitResult:
 
     def limit_mesh(self, level: int = 3):
         """Dense limit mesh ``(V_lim, F_lim, N_lim)`` of the fitted surface (NumPy)."""
-        from .limit import limit_matrix
-
-        fid, uv, F_t = tessellate(self.F, level)
-        W = limit_matrix(self.F, len(self.V), fid, uv)
-        Wu = limit_matrix(self.F, len(self.V), fid, uv, derivative="u")
-        Wv = limit_matrix(self.F, len(self.V), fid, uv, derivative="v")
-        N = np.cross(Wu @ self.V, Wv @ self.V)
-        return W @ self.V, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
+        return limit_mesh(self.V, self.F, level)
 
 
 def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
@@ -93,12 +86,7 @@ def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
     ``'random'``: four uniformly random points per face.
     """
     if mode == "vertices":
-        face = np.zeros(n_vertices, dtype=np.int64)
-        corner = np.zeros(n_vertices, dtype=np.int64)
-        for c in range(3):
-            face[F[:, c]] = np.arange(len(F))
-            corner[F[:, c]] = c
-        return face, _CORNER_UV[corner].copy()
+        return vertex_samples(F, n_vertices)
     if mode == "level1":
         fid, uv, _ = tessellate(F, 1)
         return fid, uv
@@ -265,40 +253,36 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress):
     alpha_t = dr.opaque(mi.Float, alpha / n)
     history = {"imls": [], "arap": [], "total": [], "lr": []}
     best_E, best_V = np.inf, V0.copy()
-    best_at, lr, decays, recoveries, refresh_at = 0, None, 0, 0, None
-    cap = 0.05 * _mean_edge(V0, arap.F)
+    best_at, decays, recoveries = 0, 0, 0
     patience = 12
-    opt = None
-    x = mi.Float(V0.ravel().astype(np.float32))
+    x0 = mi.Float(V0.ravel().astype(np.float32))
+    refresh_at = np.array(op.positions(x0), dtype=np.float64).T
+    imls.update(refresh_at)
+    e0 = float(imls.energy(op.positions(x0), reduce="mean")[0])
+    if not np.isfinite(e0):
+        raise FitError("fit(): the optimisation diverged (non-finite energy); "
+                       "try a smaller --alpha or another template")
+    lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-6, 0.05 * _mean_edge(V0, arap.F)))
+    opt = dr.opt.Adam(lr=lr, params={"x": x0})
     for it in range(max_iterations):
-        if opt is not None:
-            x = opt["x"]
+        x = opt["x"]
         Q = op.positions(x)
         Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
         Qn = np.array(Q, dtype=np.float64).T
-        if refresh_at is None or np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
+        if np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
             imls.update(Qn)
             refresh_at = Qn
-        R = arap.rotations(Vn)
-        if opt is None:
-            dr.enable_grad(x)
-        e_imls = imls.energy(Q if opt is not None else op.positions(x), reduce="mean")
-        E = e_imls + alpha_t * arap.energy(x, R)
+        e_imls = imls.energy(Q, reduce="mean")
+        E = e_imls + alpha_t * arap.energy(x, arap.rotations(Vn))
         values = (float(e_imls[0]), float(E[0]) - float(e_imls[0]), float(E[0]))
         if not (np.all(np.isfinite(values)) and np.isfinite(Vn).all()):
             recoveries += 1
-            if recoveries > 5 or lr is None:
+            if recoveries > 5:
                 raise FitError("fit(): the optimisation diverged (non-finite energy); "
                                "try a smaller --alpha or another template")
             lr *= 0.25
             opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
             continue
-        if opt is None:
-            lr = float(np.clip(np.sqrt(values[0]) / 3.0, 1e-6, cap))
-            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(V0.ravel().astype(np.float32))})
-            x = opt["x"]
-            Q = op.positions(x)
-            E = imls.energy(Q, reduce="mean") + alpha_t * arap.energy(x, R)
         dr.backward(E)
         for key, val in zip(("imls", "arap", "total"), values):
             history[key].append(val)

@@ -130,16 +130,14 @@ def _plain(x):
 def compare(fitted: Path, target: Path, plain_mesh: bool = False) -> dict:
     """Distances between FITTED (limit surface of a control mesh, or a mesh) and TARGET."""
     from .io_points import load_oriented_points
-    from .limit import limit_matrix
+    from .masks import limit_mesh
     from .metrics import nps_metrics, two_sided
-    from .tessellation import tessellate
     from .topology import validate_mesh
 
     V, F = io.read_mesh(fitted)
     if not plain_mesh:
         V, F, _ = validate_mesh(V, F, f"compare: {fitted}")
-        fid, uv, F_t = tessellate(F, 3)
-        V, F = limit_matrix(F, len(V), fid, uv) @ V, F_t
+        V, F, _ = limit_mesh(V, F, level=3)
     P, _, info = load_oriented_points(target)
     out = {"two_sided": None, "nps": None}
     if info.get("kind") == "mesh":

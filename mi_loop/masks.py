@@ -5,9 +5,37 @@ import numpy as np
 import scipy.sparse as sp
 
 from .limit import build_hierarchy, level_rows, padded_to_csr
+from .tessellation import tessellate
 from .topology import validate_mesh
 
 _CORNER_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+
+
+def vertex_samples(F, n_vertices: int):
+    """``(face_ids, uv)`` of one corner sample per control vertex (its limit point)."""
+    F = np.asarray(F)
+    face = np.zeros(int(n_vertices), dtype=np.int64)
+    corner = np.zeros(int(n_vertices), dtype=np.int64)
+    for c in range(3):
+        face[F[:, c]] = np.arange(len(F))
+        corner[F[:, c]] = c
+    return face, _CORNER_UV[corner].copy()
+
+
+def limit_mesh(V, F, level: int = 3, creases=None):
+    """Dense limit mesh of a control mesh: ``(P (k, 3), F_tess (t, 3), N (k, 3))`` (NumPy).
+
+    Limit points and unit limit normals at a watertight level-``level``
+    tessellation; the mesh hierarchy is built once for all three row sets.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    h = build_hierarchy(F, len(V), creases, "limit_mesh")
+    fid, uv, F_t = tessellate(h.levels[0].F, level)
+    VL = h.composed() @ V
+    P, du, dv = (padded_to_csr(i, w, h.top.n) @ VL
+                 for i, w in level_rows(h, fid, uv, (None, "u", "v")))
+    N = np.cross(du, dv)
+    return P, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
 def limit_masks(F, n_vertices, creases=None, derivatives=False):
@@ -34,16 +62,10 @@ def limit_masks(F, n_vertices, creases=None, derivatives=False):
         Position masks; with ``derivatives`` also ``(Mu, Mv)`` of the same shape.
     """
     h = build_hierarchy(F, n_vertices, creases, "limit_masks")
-    F = h.levels[0].F
-    n = int(n_vertices)
-    face = np.zeros(n, dtype=np.int64)
-    corner = np.zeros(n, dtype=np.int64)
-    for c in range(3):
-        face[F[:, c]] = np.arange(len(F))
-        corner[F[:, c]] = c
+    face, uv = vertex_samples(h.levels[0].F, n_vertices)
     names = (None, "u", "v") if derivatives else (None,)
     S = h.composed()
-    rows = level_rows(h, face, _CORNER_UV[corner], names)
+    rows = level_rows(h, face, uv, names)
     Ms = [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in rows]
     return tuple(Ms) if derivatives else Ms[0]
 

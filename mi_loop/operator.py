@@ -193,10 +193,14 @@ class LimitOperator:
         dev = self._dev()
         return dev[None].apply(dev["S"].apply(self._points(x)), expand=True)
 
-    def normals(self, x):
-        """Unit limit normals ``mi.Normal3f (k)``, ``normalize(cross(du, dv))``."""
+    def positions_normals(self, x):
+        """Limit points and unit limit normals from one evaluation: ``(mi.Point3f, mi.Normal3f)``."""
         import drjit as dr
         import mitsuba as mi
 
-        _, du, dv = self.evaluate(x)
-        return mi.Normal3f(dr.normalize(dr.cross(du, dv)))
+        P, du, dv = self.evaluate(x)
+        return P, mi.Normal3f(dr.normalize(dr.cross(du, dv)))
+
+    def normals(self, x):
+        """Unit limit normals ``mi.Normal3f (k)``, ``normalize(cross(du, dv))``."""
+        return self.positions_normals(x)[1]

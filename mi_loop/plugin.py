@@ -189,8 +189,7 @@ def _shape_class(variant: str):
             if dr.width(self._x) != 3 * self._n:
                 raise ValueError(f"loop_subdiv: control_points must hold 3 * {self._n} values, "
                                  f"got {dr.width(self._x)}")
-            P = self._operator.positions(self._x)
-            N = self._operator.normals(self._x)
+            P, N = self._operator.positions_normals(self._x)
             _write_mesh_buffers(self, dr.ravel(P), dr.ravel(N), faces)
 
         def traverse(self, cb):

@@ -43,6 +43,7 @@ def _read_csv(path: Path):
 def run(args, start, say):
     """Run ``mi-loop fit-sequence``; returns the written paths of the last frame and pictures."""
     from .fit import Normalisation, _mean_edge, sample_parameters
+    from .masks import limit_mesh
     from .operator import LimitOperator
     from .sequence import Renderer, SequenceOptions, fit_frame, vertex_normals
     from .topology import validate_mesh
@@ -112,7 +113,7 @@ def run(args, start, say):
         V, info = fit_frame(x, F, Pn, N, op, targets, renderer, options, t, lr)
         x = V
         V_world = norm.inverse(V)
-        limit = _limit_mesh(V_world, F)
+        limit = limit_mesh(V_world, F, level=2)
         metrics = _frame_metrics(limit, target, P)
         seconds = time.perf_counter() - t0
         rows.append([str(t), name, f"{metrics['mean']:.6g}", f"{metrics['rms']:.6g}",
@@ -124,18 +125,6 @@ def run(args, start, say):
         say(f"frame {t + 1}/{len(frames)} {name}: mean {metrics['mean']:.2e} RMS {metrics['rms']:.2e} "
             f"({seconds:.1f} s, render {info['time_render']:.1f} s)", start)
     return [csv_path] + _pictures(out, rows, frames, norm, F, args)
-
-
-def _limit_mesh(V, F, level: int = 2):
-    from .limit import limit_matrix
-    from .tessellation import tessellate
-
-    fid, uv, F_t = tessellate(F, level)
-    P = limit_matrix(F, len(V), fid, uv) @ V
-    du = limit_matrix(F, len(V), fid, uv, derivative="u") @ V
-    dv = limit_matrix(F, len(V), fid, uv, derivative="v") @ V
-    N = np.cross(du, dv)
-    return P, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
 def _frame_metrics(limit, target, P):

@@ -16,20 +16,10 @@ from mi_loop.cli import main
 from mi_loop.limit import limit_matrix
 from mi_loop.tessellation import tessellate
 from mi_loop.topology import validate_mesh
+from conftest import one_line_error
 
 MI_LOOP = Path(sys.executable).with_name("mi-loop")
 
-
-def one_line_error(capsys, argv, status=1):
-    """Run main(argv); check the status and a single ``mi-loop: error:`` line; return that line."""
-    code = main(argv)
-    captured = capsys.readouterr()
-    assert code == status, captured.err
-    lines = [line for line in captured.err.splitlines() if not line.startswith("[mi-loop")]
-    assert len(lines) == 1, captured.err
-    assert lines[0].startswith("mi-loop: error: ")
-    assert "Traceback" not in captured.err
-    return lines[0]
 
 
 def torus_error(V, R=1.0, r=0.4):

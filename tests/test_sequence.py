@@ -25,6 +25,7 @@ from mi_loop.operator import LimitOperator
 from mi_loop.render import _direction
 from mi_loop.sequence import Renderer, SequenceOptions, fit_frame, rig_views, vertex_normals
 from mi_loop.tessellation import tessellate
+from conftest import one_line_error
 
 BOX = (np.full(3, -0.6), np.full(3, 0.6))   # fixed camera box of the renderer tests
 
@@ -415,17 +416,6 @@ def test_ctrl_c_while_writing_a_frame_leaves_only_complete_files(inputs, geometr
 
 # -- bad input ---------------------------------------------------------------------
 
-
-def one_line_error(capsys, args, status=1):
-    """Run main(args); check the status and one ``mi-loop: error:`` line; return that line."""
-    code = main(args)
-    captured = capsys.readouterr()
-    assert code == status, captured.err
-    lines = [line for line in captured.err.splitlines() if not line.startswith("[mi-loop")]
-    assert len(lines) == 1, captured.err
-    assert lines[0].startswith("mi-loop: error: ")
-    assert "Traceback" not in captured.err
-    return lines[0]
 
 
 def test_an_unreadable_frame_stops_the_run_and_keeps_the_finished_frames(inputs, tmp_path, capsys):
