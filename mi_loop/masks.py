@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from .limit import build_hierarchy, level_rows, padded_to_csr
 from .tessellation import tessellate
