@@ -60,6 +60,7 @@ class SequenceOptions:
     joint_iterations: int = 8    # iterations with the image term per frame
     joint_lr_scale: float = 0.05  # step of the joint iterations relative to the geometric ones
     stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
+    cover: float = 1.0           # weight of the coverage term (data points pull their nearest samples)
     seed: int = 0
 
 
@@ -182,11 +183,13 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     import mitsuba as mi
 
     from .arap import ARAP
+    from .coverage import Coverage
     from .imls import IMLS
 
     n = len(x0)
     arap = ARAP(x0, F)                 # rest = previous frame's fit
     imls = IMLS(points, normals) if options.geometric else None
+    cover = Coverage(points, normals) if options.geometric and options.cover > 0 else None
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
     rng = np.random.default_rng([options.seed, frame])
     if imls is not None:
@@ -212,8 +215,13 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
         if imls is not None:
             Q = op.positions(x)
             if it % 10 == 0:
-                imls.update(np.array(Q, dtype=np.float64).T)
+                Qn = np.array(Q, dtype=np.float64).T
+                imls.update(Qn)
+                if cover is not None:
+                    cover.update(Qn)
             E = E + imls.energy(Q, reduce="mean")
+            if cover is not None:
+                E = E + options.cover * cover.energy(Q)
         geo = float(E[0])
         image = np.nan
         if it == n_geo and n_geo:
