@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SEQ = Path(__file__).resolve().parents[2] / "shared" / "data" / "sequences"
 RESULTS = ROOT / "bench" / "results" / "sequence"
-SEQUENCES = {"spot": ("spot_arap_16f.npz", 1000), "fox": ("fox_walk_24f.npz", 600)}
+SEQUENCES = {"spot": ("spot_arap_16f.npz", 1000), "fox": ("fox_walk_24f.npz", 1000)}
 CONFIGS = {"imls": ["--no-image"], "image": [], "dr": ["--image-only"]}
 LABELS = {"imls": "IMLS only", "image": "IMLS + image", "dr": "image only"}
 

@@ -91,12 +91,18 @@ def _parser() -> argparse.ArgumentParser:
     group = seq.add_mutually_exclusive_group()
     group.add_argument("--vertices", type=int, default=1000, help="template control vertices (default 1000)")
     group.add_argument("--template", type=Path, help="control mesh to use for every frame")
+    seq.add_argument("--poisson-template", action="store_true",
+                     help="build the automatic template by screened Poisson even when the first frame is a mesh")
     seq.add_argument("--views", type=_positive, default=20, help="cameras around the subject (default 20)")
     seq.add_argument("--views-per-iteration", type=_positive, default=2, help="random views per iteration (default 2)")
     seq.add_argument("--res", type=_positive, default=96, help="image size (default 96)")
     seq.add_argument("--spp", type=_positive, default=4, help="samples per pixel of the renders (default 4)")
     seq.add_argument("--beta", type=float, default=1.0, help="image-loss weight (default 1)")
     seq.add_argument("--alpha", type=float, default=0.01, help="ARAP weight (default 0.01)")
+    seq.add_argument("--samples", choices=["vertices", "level1", "random"], default="level1",
+                     help="limit samples of the geometric terms (default level1)")
+    seq.add_argument("--cover", type=float, default=1.0,
+                     help="weight of the coverage term: data points pull their nearest samples (default 1)")
     seq.add_argument("--loss", choices=["l1", "l2"], default="l1")
     seq.add_argument("--mode", choices=["shading", "silhouette"], default="shading",
                      help="shaded images (default) or silhouettes only")
@@ -198,6 +204,8 @@ def _fit_sequence(args, start) -> None:
 
     if args.vertices is not None and args.template is None and args.vertices < 4:
         raise ValueError(f"fit-sequence: --vertices must be at least 4, got {args.vertices}")
+    if args.template is not None and args.poisson_template:
+        raise ValueError("fit-sequence: --poisson-template builds a template, so it cannot go with --template")
     for path in sequence_job.run(args, start, _say):
         print(path)
 

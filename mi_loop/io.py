@@ -7,6 +7,7 @@ crash never leaves a half-written file behind.
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import tempfile
 from pathlib import Path
@@ -280,8 +281,8 @@ def read_frames(inputs) -> list:
     ----------
     inputs : list of str or os.PathLike
         One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``; or mesh /
-        point-cloud files, or directories (their PLY/OBJ/OFF/XYZ/PTS/NPZ files,
-        sorted by name).
+        point-cloud files, directories (their PLY/OBJ/OFF/XYZ/PTS/NPZ files,
+        sorted by name) or glob patterns such as ``'scan_*.ply'`` (sorted).
 
     Returns
     -------
@@ -301,6 +302,12 @@ def read_frames(inputs) -> list:
             paths += sorted(q for q in p.iterdir() if q.suffix.lower() in suffixes)
         elif p.exists():
             paths.append(p)
+        elif any(c in str(item) for c in "*?["):   # a quoted glob pattern
+            matches = sorted(Path(m) for m in glob.glob(str(item)))
+            matches = [m for m in matches if m.is_file() and m.suffix.lower() in suffixes]
+            if not matches:
+                raise ValueError(f"read_frames: no frame file matches '{item}'")
+            paths += matches
         else:
             raise ValueError(f"read_frames: no such file or directory: '{p}'")
     if not paths:

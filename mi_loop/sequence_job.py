@@ -33,6 +33,28 @@ def _frame_data(frame, n_points, seed):
     return name, P, Np, (X, F)
 
 
+def _template(first, norm, args, start, say):
+    """The first frame's automatic template (normalised units): from its mesh, else Poisson.
+
+    A mesh frame is refined and decimated directly (:func:`mesh_template`),
+    which keeps thin parts that a coarse Poisson octree loses; a point-cloud
+    frame, a mesh that is not a clean manifold, or ``--poisson-template`` goes
+    through screened Poisson + decimation (:func:`make_template`).
+    """
+    from .template import make_template, mesh_template
+
+    if first[3] is not None and not args.poisson_template:
+        try:
+            x, F, _ = mesh_template(norm.forward(first[3][0]), first[3][1], args.vertices)
+            say(f"template: first frame's mesh decimated to {len(x)} vertices", start)
+            return x, F
+        except ValueError as exc:
+            say(f"template: first frame's mesh cannot be used ({exc}); screened Poisson instead", start)
+    say(f"template: screened Poisson + decimation to {args.vertices} vertices", start)
+    x, F, _ = make_template(norm.forward(first[1]), first[2], args.vertices, seed=args.seed)
+    return x, F
+
+
 def _read_csv(path: Path):
     if not path.exists():
         return []
@@ -61,7 +83,7 @@ def run(args, start, say):
                               resolution=args.res, spp=args.spp, loss=args.loss, mode=args.mode,
                               geometric=not args.image_only, image=not args.no_image,
                               geo_iterations=args.iterations, joint_iterations=args.image_iterations,
-                              seed=args.seed)
+                              cover=args.cover, seed=args.seed)
     first = _frame_data(frames[0](), args.points, args.seed)
     if args.resume and rows:
         state = json.loads(state_path.read_text())
@@ -79,10 +101,7 @@ def run(args, start, say):
             V_t, F, _ = validate_mesh(V_t, F, f"--template {args.template}")
             x = norm.forward(V_t)
         else:
-            from .template import make_template
-
-            say(f"template: screened Poisson + decimation to {args.vertices} vertices", start)
-            x, F, _ = make_template(norm.forward(first[1]), first[2], args.vertices, seed=args.seed)
+            x, F = _template(first, norm, args, start, say)
         lr = 0.02 * _mean_edge(x, F)
         lo, hi = x.min(0), x.max(0)
         pad = 0.15 * (hi - lo).max()
@@ -94,7 +113,7 @@ def run(args, start, say):
     if first[3] is None and options.image:
         say("point-cloud frames: no surface to render, so the image term is off (IMLS + ARAP only)", start)
         options.image = False
-    fid, uv = sample_parameters(F, len(x), "vertices")
+    fid, uv = sample_parameters(F, len(x), args.samples)
     op = LimitOperator(F, len(x), fid, uv, derivatives=False)
     renderer = None
     if options.image:   # cameras fixed for the whole run (resume included): stored box

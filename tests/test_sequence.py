@@ -479,3 +479,44 @@ def test_fewer_than_four_template_vertices_are_rejected(inputs, tmp_path, capsys
                                    "--vertices", "3"])
     assert line == "mi-loop: error: fit-sequence: --vertices must be at least 4, got 3"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_quoted_glob_selects_frames_in_name_order(tmp_path, capsys):
+    for t in (2, 0, 1, 3):
+        io.write_ply(tmp_path / f"f_{t:02d}.ply", *sphere(1.0 + 0.1 * t))
+    (tmp_path / "f_notes.txt").write_text("not a frame\n")
+    frames = io.read_frames([str(tmp_path / "f_0[0-2].ply")])
+    assert [frame()[0] for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.ply"]
+    line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "g_*.ply"), "-o", str(tmp_path / "out")])
+    assert line == f"mi-loop: error: read_frames: no frame file matches '{tmp_path / 'g_*.ply'}'"
+
+
+def test_the_automatic_template_of_mesh_frames_comes_from_the_first_mesh(tmp_path, capsys):
+    V, F = datasets.icosphere(3)
+    np.savez(tmp_path / "seq.npz", vertices=np.stack([V, 1.1 * V]), faces=F)
+    out = tmp_path / "out"
+    run_ok(["fit-sequence", str(tmp_path / "seq.npz"), "-o", str(out), "--vertices", "120",
+            "--no-image", "--iterations", "30", "--points", "3000"])
+    assert "template: first frame's mesh decimated to" in capsys.readouterr().err
+    Vc, Fc = io.read_mesh(out / "control" / "0000.ply")
+    assert abs(len(Vc) - 120) <= 6
+    rows = read_rows(out)
+    assert max(float(r["mean"]) for r in rows) < 2e-3
+
+
+def test_a_non_manifold_first_frame_falls_back_to_poisson(tmp_path, capsys):
+    V, F = datasets.icosphere(3)
+    F_bad = np.vstack([F, F[:1]])                        # one face twice
+    np.savez(tmp_path / "seq.npz", vertices=V[None], faces=F_bad)
+    run_ok(["fit-sequence", str(tmp_path / "seq.npz"), "-o", str(tmp_path / "out"), "--vertices", "120",
+            "--no-image", "--iterations", "5", "--points", "3000"])
+    err = capsys.readouterr().err
+    assert "template: first frame's mesh cannot be used (mesh_template(): edge (0, 166) is used twice" in err
+    assert "template: screened Poisson + decimation to 120 vertices" in err
+
+
+def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, capsys):
+    line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
+                                   "--template", str(inputs[1]), "--poisson-template"])
+    assert line == ("mi-loop: error: fit-sequence: --poisson-template builds a template, "
+                    "so it cannot go with --template")
