@@ -46,9 +46,18 @@ def look_at_bbox(bbox_min, bbox_max, azimuth: float = 35.0, elevation: float = 2
 
     lo, hi = np.asarray(bbox_min, dtype=np.float64), np.asarray(bbox_max, dtype=np.float64)
     centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    distance = margin * radius / np.sin(np.radians(fov) / 2)
+    distance = look_at_distance(radius, fov, margin)
     origin = centre + distance * _direction(azimuth, elevation)
     return mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=centre.tolist(), up=[0, 1, 0])
+
+
+def look_at_distance(radius: float, fov: float, margin: float = 1.1) -> float:
+    """Camera distance at which a sphere of ``radius`` fills ``margin`` times the field of view.
+
+    >>> round(look_at_distance(1.0, 35.0), 3)
+    3.658
+    """
+    return margin * radius / np.sin(np.radians(fov) / 2)
 
 
 def sensor_dict(bbox_min, bbox_max, *, azimuth: float = 35.0, elevation: float = 25.0,
@@ -111,7 +120,13 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
     centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
     import mitsuba as mi
 
-    light_at = centre + 3 * radius * _direction(60.0, 70.0)      # high: out of low-elevation views
+    # The key light sits high (60, 70 degrees) and beyond the cameras: a panel
+    # between a camera and the subject would hide the subject from views near
+    # its direction. Its size grows with its distance, so the solid angle it
+    # subtends from the subject (hence the irradiance) stays that of a
+    # 1.2 r panel at 3 r.
+    reach = 1.25 * look_at_distance(radius, fov) / radius
+    light_at = centre + reach * radius * _direction(60.0, 70.0)
     scene = {
         "type": "scene",
         "integrator": integrator if integrator is not None else {"type": "path", "max_depth": 4},
@@ -120,7 +135,7 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
         "key_light": {
             "type": "rectangle",
             "to_world": mi.ScalarTransform4f().look_at(origin=light_at.tolist(), target=centre.tolist(),
-                                                       up=[0, 1, 0]).scale([0.6 * radius] * 3),
+                                                       up=[0, 1, 0]).scale([0.2 * reach * radius] * 3),
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 6.0}},
         },
     }

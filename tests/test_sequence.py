@@ -169,6 +169,22 @@ def test_rig_views_cover_the_sphere():
     assert elevation == 0.0 and 0 <= azimuth < 360                  # one view: on the equator
 
 
+def test_every_view_of_the_rig_sees_the_lit_subject():
+    """No camera of a 20-view rig looks at the back of the key light instead of the subject.
+
+    (The key light once sat between the subject and the cameras near its
+    direction, so view 0 rendered black for target and fit alike: no loss and
+    no gradient.) The centre of every view shows the grey sphere lit at least
+    by the environment.
+    """
+    V, F = sphere(0.4, 2)
+    options = SequenceOptions(views=20, resolution=16, target_spp=8)
+    renderer = Renderer(V, F, BOX, options)
+    for k, image in enumerate(renderer.targets(V, F, vertex_normals(V, F))):
+        centre = np.array(image)[6:10, 6:10].mean()
+        assert centre > 0.1, (k, renderer.views[k], centre)
+
+
 def test_rig_views_rejects_zero_views():
     with pytest.raises(ValueError, match=r"rig_views\(\): expected at least one view, got 0"):
         rig_views(0)
