@@ -57,7 +57,7 @@ def look_at_distance(radius: float, fov: float, margin: float = 1.1) -> float:
     >>> round(look_at_distance(1.0, 35.0), 3)
     3.658
     """
-    return margin * radius / np.sin(np.radians(fov) / 2)
+    return float(margin * radius / np.sin(np.radians(fov) / 2))
 
 
 def sensor_dict(bbox_min, bbox_max, *, azimuth: float = 35.0, elevation: float = 25.0,
