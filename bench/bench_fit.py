@@ -58,6 +58,7 @@ STATIC = SHARED / "static"
 NPS_TABLE1 = {"bunny": (1.347, 15.971, 5.39), "fandisk": (0.572, 8.743, 1.79)}  # P2S, HD (x1e-3), NAE (deg)
 STAGES = ("template", "operator", "energies", "optimisation", "total")
 SHORT = {"max_iterations": "max_it"}                   # fit() keyword -> table label
+FIT_OPTIONS: dict = {}                                 # --cover: passed to every fit() call
 
 
 # -- helpers -------------------------------------------------------------------
@@ -120,7 +121,7 @@ def run_fits(P, N, runs: int, **kw):
     """``runs`` fits with the same arguments; returns (results, per-stage list of seconds)."""
     from mi_loop.fit import fit
 
-    results = [fit(P, N, **kw) for _ in range(runs)]
+    results = [fit(P, N, **(FIT_OPTIONS | kw)) for _ in range(runs)]
     times = {s: [r.timings[s] for r in results] for s in STAGES}
     times["iterations"] = [len(r.history["total"]) for r in results]
     spread = max(float(np.abs(r.V - results[0].V).max()) for r in results)
@@ -218,7 +219,7 @@ def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_ro
                     **kw):
     from mi_loop.fit import fit
 
-    r = fit(P, N, n_vertices=1000, **kw)
+    r = fit(P, N, n_vertices=1000, **(FIT_OPTIONS | kw))
     s = fit_summary(r)
     note = (f"{s['n_vertices']} cv, {s['iterations']} it, {r.timings['total']:.1f} s, "
             f"alpha {r.params['alpha']:g}, h0 {s['h0']:.4g}")
@@ -319,13 +320,16 @@ def main(argv=None) -> None:
                     help="scan: default fits, --tolerance and --max-iterations rows only "
                          "(no Poisson depth 8, no other variants); "
                          "robust: no alpha 0.01 rows for noise and outliers")
+    ap.add_argument("--cover", type=float, help="coverage weight of every fit (default: fit()'s)")
     ap.add_argument("--json", type=Path, help="also write all rows to this JSON file")
     args = ap.parse_args(argv)
+    if args.cover is not None:
+        FIT_OPTIONS["cover"] = args.cover
 
     import mi_loop
 
     mi_loop.set_variant("llvm_ad_rgb")
-    print(header())
+    print(header() + (f"\nfit() options: {FIT_OPTIONS}" if FIT_OPTIONS else ""))
     out, t0 = [], time.perf_counter()
     for part, fn in (("scan", bench_scan), ("nps", bench_nps), ("robust", bench_robust)):
         if args.part in (part, "all"):

@@ -136,6 +136,8 @@ def fit_options(p):
     group.add_argument("--template", type=Path, help="control mesh to start from instead")
     p.add_argument("--alpha", type=float, help="ARAP weight (default 0.001; raise it for noisy data)")
     p.add_argument("--h0", type=float, help="IMLS radius in the unit box (default: from point spacing)")
+    p.add_argument("--cover", type=float, default=3.0,
+                   help="coverage weight: data points pull their nearest limit samples (default 3; 0: off)")
     p.add_argument("--samples", choices=["vertices", "level1", "random"], default="level1",
                    help="limit samples: level-1 tessellation points (default) or one per control vertex")
     p.add_argument("--iterations", type=_positive, default=400, help="iteration cap (default 400)")

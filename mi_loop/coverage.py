@@ -11,6 +11,11 @@ term is the other direction, an ICP-style point-to-plane energy
 in :meth:`Coverage.update`, held fixed in between) and ``n_i`` the data
 normal. Measuring along the data normal leaves samples free to slide along the
 surface, so the term does not bunch them up where data points are dense.
+
+Isolated data points are left out: a point whose ``m``-th nearest other data
+point (``m = 8``) is more than ``isolation`` times farther than that of the
+median point is an outlier (a stray point in the air), not a part of the
+surface to cover, and the term would drag the surface to it.
 """
 from __future__ import annotations
 
@@ -31,6 +36,9 @@ class Coverage:
         Data points ``p_i``.
     normals : (N, 3) float NumPy array
         Data normals ``n_i``, any non-zero length (normalised here).
+    isolation : float
+        Points whose 8th-nearest-neighbour distance exceeds this multiple
+        of the median one get weight 0 (see the module notes).
 
     Examples
     --------
@@ -47,7 +55,9 @@ class Coverage:
     0.01
     """
 
-    def __init__(self, points, normals):
+    def __init__(self, points, normals, isolation: float = 3.0):
+        import mitsuba as mi
+
         P = np.asarray(points, dtype=np.float64)
         N = np.asarray(normals, dtype=np.float64)
         if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
@@ -59,7 +69,11 @@ class Coverage:
         length = np.linalg.norm(N, axis=1)
         if (length == 0).any():
             raise ValueError(f"Coverage: normal {int(np.flatnonzero(length == 0)[0])} has zero length")
+        if not isolation > 1:
+            raise ValueError(f"Coverage: isolation must be a number > 1, got {isolation!r}")
         self.points, self.normals = P, N / length[:, None]
+        self.weight = _not_isolated(P, isolation).astype(np.float64)
+        self._w = mi.Float(_aligned(self.weight / self.weight.sum(), np.float32))
         self._p = _upload_vec_f(self.points)
         self._n = _upload_vec_f(self.normals, vector=True)
         self.nearest = None
@@ -89,7 +103,7 @@ class Coverage:
         self._idx = mi.UInt32(_aligned(self.nearest, np.uint32))
 
     def energy(self, Q):
-        """``mean_i (n_i . (Q_{j(i)} - p_i))^2`` as ``mi.Float (1)``, differentiable w.r.t. ``Q``."""
+        """``mean_i (n_i . (Q_{j(i)} - p_i))^2`` over the kept points, ``mi.Float (1)``, differentiable."""
         import drjit as dr
         import mitsuba as mi
 
@@ -99,7 +113,15 @@ class Coverage:
             raise ValueError(f"Coverage.energy: expected {self.n_samples} samples (as at the last "
                              f"update), got {dr.width(Q)}")
         q = dr.gather(mi.Point3f, Q, self._idx)
-        return dr.mean(dr.square(dr.dot(self._n, q - self._p)))
+        return dr.sum(self._w * dr.square(dr.dot(self._n, q - self._p)))
+
+
+def _not_isolated(P, isolation: float, m: int = 8):
+    """Mask of points whose ``m``-th nearest other point lies within ``isolation`` x the median's."""
+    if len(P) <= m:
+        return np.ones(len(P), dtype=bool)
+    d = cKDTree(P).query(P, k=m + 1, workers=-1)[0][:, m]
+    return d <= isolation * np.median(d)
 
 
 def _upload_vec_f(A, vector: bool = False):

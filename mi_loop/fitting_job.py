@@ -82,7 +82,7 @@ def run(args, start, say):
         try:
             result = fit(P, N, n_vertices=args.vertices, template=template, alpha=args.alpha,
                          h0=args.h0, samples=args.samples, max_iterations=args.iterations,
-                         seed=args.seed, progress=update)
+                         cover=args.cover, seed=args.seed, progress=update)
         finally:
             close()
         say(f"fitted {len(result.V)} control vertices in {result.params['iterations']} iterations "
@@ -101,7 +101,7 @@ def run(args, start, say):
         report = {"input": str(args.input) if args.input else info["source"], "input_info": info,
                   "params": result.params, "timings_s": result.timings, "metrics": metrics,
                   "template": result.info["template"], "machine": platform.node(),
-                  "final_energy": {k: result.history[k][-1] for k in ("imls", "arap", "total")}}
+                  "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "total")}}
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F)
             io.write_ply(stage / "limit.ply", V_lim, F_lim, normals=N_lim)

@@ -34,7 +34,7 @@ def cloud():
 
 def test_energy_and_gradient_match_numpy(cloud):
     P, N, Q = cloud
-    cover = Coverage(P, N)
+    cover = Coverage(P, N, isolation=1e9)               # keep every point of the Gaussian cloud
     cover.update(Q)
     j = brute_nearest(P, Q)
     np.testing.assert_array_equal(cover.nearest, j)
@@ -102,6 +102,25 @@ def test_coverage_pulls_the_fit_out_to_a_spike():
     assert miss[1.0] < 0.5 * miss[0.0], miss
 
 
+def test_isolated_points_are_left_out():
+    """A grid of data points plus three stray points far above it: the strays get weight 0
+    and do not pull the samples; a lone point slightly off the grid still counts."""
+    g = np.linspace(0, 1, 30)
+    P = np.array([(x, y, 0.0) for x in g for y in g])
+    P[0, 2] = 0.02
+    strays = np.array([[0.5, 0.5, 2.0], [0.1, 0.9, -3.0], [0.8, 0.2, 5.0]])
+    P = np.vstack([P, strays])
+    N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    cover = Coverage(P, N)
+    np.testing.assert_array_equal(cover.weight, np.r_[np.ones(900), np.zeros(3)])
+    Q = P[:900:7].copy()
+    Q[:, 2] = 0.0
+    cover.update(Q)
+    kept = P[:900]
+    expected = np.mean((Q[brute_nearest(kept, Q), 2] - kept[:, 2]) ** 2)
+    np.testing.assert_allclose(float(cover.energy(point3(Q))[0]), expected, rtol=1e-5)
+
+
 @pytest.mark.parametrize("call, message", [
     (lambda P, N: Coverage(P[:, :2], N), r"Coverage: points must have shape \(N, 3\) with N >= 1, got \(300, 2\)"),
     (lambda P, N: Coverage(P, N[:-1]), r"Coverage: normals must have the points' shape \(300, 3\), got \(299, 3\)"),
@@ -109,6 +128,7 @@ def test_coverage_pulls_the_fit_out_to_a_spike():
      r"Coverage: point 7 = \[nan, nan, nan\] is not finite"),
     (lambda P, N: Coverage(P, np.where(np.arange(300)[:, None] == 4, 0.0, N)),
      r"Coverage: normal 4 has zero length"),
+    (lambda P, N: Coverage(P, N, isolation=1.0), r"Coverage: isolation must be a number > 1, got 1.0"),
 ])
 def test_bad_inputs_are_named(cloud, call, message):
     P, N, _ = cloud
