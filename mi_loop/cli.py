@@ -101,8 +101,8 @@ def _parser() -> argparse.ArgumentParser:
     seq.add_argument("--alpha", type=float, default=0.01, help="ARAP weight (default 0.01)")
     seq.add_argument("--samples", choices=["vertices", "level1", "random"], default="level1",
                      help="limit samples of the geometric terms (default level1)")
-    seq.add_argument("--cover", type=float, default=1.0,
-                     help="weight of the coverage term: data points pull their nearest samples (default 1)")
+    seq.add_argument("--cover", type=float, default=3.0,
+                     help="weight of the coverage term: data points pull their nearest samples (default 3)")
     seq.add_argument("--loss", choices=["l1", "l2"], default="l1")
     seq.add_argument("--mode", choices=["shading", "silhouette"], default="shading",
                      help="shaded images (default) or silhouettes only")

@@ -60,8 +60,26 @@ class SequenceOptions:
     joint_iterations: int = 8    # iterations with the image term per frame
     joint_lr_scale: float = 0.05  # step of the joint iterations relative to the geometric ones
     stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
-    cover: float = 1.0           # weight of the coverage term (data points pull their nearest samples)
+    cover: float = 3.0           # weight of the coverage term (data points pull their nearest samples)
     seed: int = 0
+
+    def __post_init__(self):
+        for name in ("alpha", "beta", "cover", "stiff_factor"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"SequenceOptions: {name} must be a finite number >= 0, got {value}")
+        if not (np.isfinite(self.joint_lr_scale) and self.joint_lr_scale > 0):
+            raise ValueError(f"SequenceOptions: joint_lr_scale must be a finite number > 0, "
+                             f"got {self.joint_lr_scale}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"SequenceOptions: loss must be one of {LOSSES}, got {self.loss!r}")
+        if self.mode not in IMAGE_MODES:
+            raise ValueError(f"SequenceOptions: mode must be one of {IMAGE_MODES}, got {self.mode!r}")
+        if not 1 <= self.views_per_iteration <= self.views:
+            raise ValueError(f"SequenceOptions: views_per_iteration must be in [1, views={self.views}], "
+                             f"got {self.views_per_iteration}")
+        if not (self.geometric or self.image):
+            raise ValueError("SequenceOptions: geometric and image terms are both off; nothing to fit")
 
 
 class Renderer:

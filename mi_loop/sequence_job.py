@@ -110,6 +110,9 @@ def run(args, start, say):
                  "options": asdict(options), "n_frames": len(frames)}
         io.write_text(state_path, json.dumps(state, indent=2) + "\n")
         rows, done = [], -1
+    if first[3] is None and not options.geometric:
+        raise ValueError("fit-sequence: --image-only needs mesh frames; point-cloud frames have no "
+                         "surface to render")
     if first[3] is None and options.image:
         say("point-cloud frames: no surface to render, so the image term is off (IMLS + ARAP only)", start)
         options.image = False

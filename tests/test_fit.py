@@ -133,7 +133,8 @@ def test_fit_is_in_the_inputs_units_and_ignores_normal_length():
     np.testing.assert_allclose(b.V, 100.0 * a.V + shift, rtol=0, atol=1e-3)
     np.testing.assert_allclose(b.params["normalisation_scale"], 100.0 * a.params["normalisation_scale"])
     np.testing.assert_allclose(b.params["h0"], a.params["h0"], rtol=1e-9)   # h0 lives in the unit box
-    np.testing.assert_allclose(b.history["total"], a.history["total"], rtol=1e-5)
+    # float32 sums over the data in a nondeterministic order: ~1e-5 drift after 60 iterations
+    np.testing.assert_allclose(b.history["total"], a.history["total"], rtol=1e-4)
     assert np.ptp(b.V, axis=0).max() > 50 * np.ptp(P, axis=0).max()         # not left in the unit box
 
 

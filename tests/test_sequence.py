@@ -536,3 +536,60 @@ def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, caps
                                    "--template", str(inputs[1]), "--poisson-template"])
     assert line == ("mi-loop: error: fit-sequence: --poisson-template builds a template, "
                     "so it cannot go with --template")
+
+
+@pytest.mark.parametrize("flag, value, message", [
+    ("--alpha", "-1", "alpha must be a finite number >= 0, got -1.0"),
+    ("--beta", "nan", "beta must be a finite number >= 0, got nan"),
+    ("--cover", "-0.5", "cover must be a finite number >= 0, got -0.5"),
+])
+def test_negative_or_nan_weights_are_rejected(inputs, tmp_path, capsys, flag, value, message):
+    line = one_line_error(capsys, argv(inputs, tmp_path / "out", flag, value))
+    assert line == f"mi-loop: error: SequenceOptions: {message}"
+
+
+def test_sequence_options_reject_nonsense():
+    with pytest.raises(ValueError, match=r"SequenceOptions: views_per_iteration must be in \[1, views=4\], got 5"):
+        SequenceOptions(views=4, views_per_iteration=5)
+    with pytest.raises(ValueError, match=r"SequenceOptions: loss must be one of \('l1', 'l2'\), got 'l3'"):
+        SequenceOptions(loss="l3")
+    with pytest.raises(ValueError, match=r"SequenceOptions: mode must be one of"):
+        SequenceOptions(mode="depth")
+    with pytest.raises(ValueError, match=r"SequenceOptions: joint_lr_scale must be a finite number > 0, got 0"):
+        SequenceOptions(joint_lr_scale=0)
+    with pytest.raises(ValueError, match=r"SequenceOptions: geometric and image terms are both off"):
+        SequenceOptions(geometric=False, image=False)
+
+
+def point_frames(tmp_path, n=2):
+    """``n`` XYZ frames (points and normals) of a growing unit sphere."""
+    frames = tmp_path / "points"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for t in range(n):
+        N = rng.normal(size=(4000, 3))
+        N /= np.linalg.norm(N, axis=1, keepdims=True)
+        np.savetxt(frames / f"{t:04d}.xyz", np.hstack([(1.0 + 0.05 * t) * N, N]))
+    return frames
+
+
+def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, capsys):
+    out = tmp_path / "out"
+    run_ok(["fit-sequence", str(point_frames(tmp_path)), "-o", str(out), "--template", str(inputs[1]),
+            "--iterations", "60", "--points", "2000"])
+    err = capsys.readouterr().err
+    assert "point-cloud frames: no surface to render, so the image term is off" in err
+    rows = read_rows(out)
+    assert [int(r["frame"]) for r in rows] == [0, 1]
+    assert all(float(r["time_render"]) == 0 for r in rows)
+    for t, r in enumerate(rows):                  # the limit surface follows the growing sphere
+        V_lim, _ = io.read_mesh(out / "limit" / f"{t:04d}.ply")
+        np.testing.assert_allclose(np.linalg.norm(V_lim, axis=1).mean(), 1.0 + 0.05 * t, rtol=0.02)
+        assert float(r["mean"]) < 0.01
+
+
+def test_image_only_needs_mesh_frames(inputs, tmp_path, capsys):
+    line = one_line_error(capsys, ["fit-sequence", str(point_frames(tmp_path, 1)), "-o", str(tmp_path / "out"),
+                                   "--template", str(inputs[1]), "--image-only"])
+    assert line == ("mi-loop: error: fit-sequence: --image-only needs mesh frames; point-cloud frames "
+                    "have no surface to render")
