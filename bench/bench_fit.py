@@ -290,7 +290,7 @@ def bench_robust(args, out: list) -> None:
     target = read_mesh(path)
     P, N, _ = load_oriented_points(path)
     rows, cache = [], {}
-    ref = fit_and_measure(P, N, target, cache, "clean, alpha 0.01", rows, out)
+    ref = fit_and_measure(P, N, target, cache, "clean, default alpha", rows, out)
     rows[-1][4] = "1.00 / 1.00 / 1.00"
     cases = [("noise", 0.1), ("outliers", 0.1), ("partial", 0.01)]
     if not args.quick:

@@ -14,10 +14,16 @@ Two parts, each printing Markdown tables:
     mesh, not the re-sampled one) is computed with
     :func:`mi_loop.metrics.two_sided`, relative to the frame's bbox diagonal.
 ``cost``
-    One iteration of the geometric part (limit operator + IMLS + ARAP +
-    backward) against one render + backward of the limit mesh (one view, the
-    default resolution and spp), on the spot template; then the per-frame work
-    outside the iterations (target renders, IMLS set-up, output mesh, metrics).
+    One iteration of the geometric part (limit operator + IMLS + coverage +
+    ARAP + backward, level-1 samples) against one render + backward of the
+    limit mesh (one view, the default resolution and spp), on the spot
+    template; then the per-frame work outside the iterations (target renders,
+    IMLS set-up, output mesh, metrics).
+``probe``
+    What the image term adds once the geometry has converged: at the last
+    frame of an IMLS-only run, the agreement of image gradients between render
+    seeds, and the distance after 30 joint iterations, for several image
+    resolutions / spp / modes (see :func:`probe_part`).
 
 Usage::
 
@@ -26,6 +32,7 @@ Usage::
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py fit --seq spot --frames 4 --configs image \\
         --extra="--beta 4"                                               # a settings sweep point
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py cost
+    PYTHONPATH=. .venv/bin/python bench/bench_sequence.py probe --seq spot   # after fit --tag _defaults
 
 Runs go to ``bench/results/sequence/`` (not tracked). Every table repeats the
 load average: other jobs on the machine inflate timings.
@@ -183,12 +190,13 @@ def cost_part(args):
     import mitsuba as mi
 
     from mi_loop.arap import ARAP
+    from mi_loop.coverage import Coverage
     from mi_loop.fit import Normalisation, sample_parameters
     from mi_loop.imls import IMLS
     from mi_loop.metrics import sample_surface
     from mi_loop.operator import LimitOperator
     from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
-    from mi_loop.template import make_template
+    from mi_loop.template import mesh_template
     from mi_loop.variant import set_variant
 
     set_variant("llvm_ad_rgb")
@@ -196,12 +204,13 @@ def cost_part(args):
     V, F_t = np.asarray(data["vertices"][0], np.float64), np.asarray(data["faces"])
     P, N, _ = sample_surface(V, F_t, 20_000, seed=0)
     norm = Normalisation.of(P)
-    x0, F, _ = make_template(norm.forward(P), N, 1000, seed=0)
-    fid, uv = sample_parameters(F, len(x0), "vertices")
+    x0, F, _ = mesh_template(norm.forward(V), F_t, 1000)
+    options = SequenceOptions()
+    fid, uv = sample_parameters(F, len(x0), "level1")       # the CLI's default --samples
     op = LimitOperator(F, len(x0), fid, uv, derivatives=False)
     imls = IMLS(norm.forward(P), N)
+    cover = Coverage(norm.forward(P), N)
     arap = ARAP(x0, F)
-    options = SequenceOptions()
     lo, hi = x0.min(0), x0.max(0)
     pad = 0.15 * (hi - lo).max()
     renderer = Renderer(x0, F, (lo - pad, hi + pad), options)
@@ -209,14 +218,16 @@ def cost_part(args):
     targets = renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
     alpha = dr.opaque(mi.Float, options.alpha / len(x0))
     base = x0.ravel().astype(np.float32)
-    Q = op.positions(mi.Float(base))
-    imls.update(np.array(Q, dtype=np.float64).T)
+    Q = np.array(op.positions(mi.Float(base)), dtype=np.float64).T
+    imls.update(Q)
+    cover.update(Q)
 
     def geometric(i):
         x = mi.Float(base + 1e-4 * i)
         dr.enable_grad(x)
         R = arap.rotations(np.array(x, dtype=np.float64).reshape(-1, 3))
-        E = imls.energy(op.positions(x), reduce="mean") + alpha * arap.energy(x, R)
+        Q = op.positions(x)
+        E = imls.energy(Q, reduce="mean") + options.cover * cover.energy(Q) + alpha * arap.energy(x, R)
         dr.backward(E)
         dr.eval(dr.grad(x))
 
@@ -238,18 +249,27 @@ def cost_part(args):
             ts.append(time.perf_counter() - t)
         return np.array(ts) * 1e3
 
+    def refresh(i):      # neighbour lists, as fit_frame does every 10 iterations
+        Qi = np.array(op.positions(mi.Float(base + 1e-4 * i)), dtype=np.float64).T
+        imls.update(Qi)
+        cover.update(Qi)
+
     g = timed(geometric, args.runs)
+    u = timed(refresh, args.runs)
     r = timed(image, args.runs)
     once = per_frame_costs(V, F_t, x0, F, norm, renderer)
-    print(f"\nCost per iteration, spot template {len(x0)} control vertices ({len(F)} faces), "
+    print(f"\nCost per iteration, spot template {len(x0)} control vertices ({len(F)} faces, "
+          f"{len(fid)} limit samples), "
           f"render {options.resolution}^2 at {options.spp} spp, level {options.level}, one view [{load()}]\n")
     print("| step | min ms | median ms | max ms |")
     print("|---|---|---|---|")
-    for label, a in (("limit operator + IMLS + ARAP (+ rotations) + backward", g),
+    for label, a in (("limit operator + IMLS + coverage + ARAP (+ rotations) + backward", g),
+                     ("IMLS + coverage neighbour refresh (every 10 iterations)", u),
                      ("one render + backward (direct_projective, 1 view)", r)):
         print(f"| {label} | {a.min():.1f} | {np.median(a):.1f} | {a.max():.1f} |")
-    print(f"\nratio geometric / render (medians): {np.median(g) / np.median(r):.1%}; "
-          f"per iteration with 2 views: {np.median(g) / (2 * np.median(r)):.1%}")
+    geo = np.median(g) + np.median(u) / 10
+    print(f"\nratio geometric (refresh amortised over 10 iterations) / render (medians): "
+          f"{geo / np.median(r):.1%}; per iteration with 2 views: {geo / (2 * np.median(r)):.1%}")
     print("\nPer-frame work outside the iterations (one run each):\n")
     print("| step | s |")
     print("|---|---|")
@@ -259,10 +279,12 @@ def cost_part(args):
 
 def per_frame_costs(V, F_t, x0, F, norm, renderer):
     """Seconds of the per-frame steps of ``mi-loop fit-sequence`` that are not iterations."""
+    from mi_loop.coverage import Coverage
     from mi_loop.imls import IMLS
+    from mi_loop.masks import limit_mesh
     from mi_loop.metrics import sample_surface
     from mi_loop.sequence import vertex_normals
-    from mi_loop.sequence_job import _frame_metrics, _limit_mesh
+    from mi_loop.sequence_job import _frame_metrics
 
     out, t = {}, time.perf_counter()
 
@@ -274,15 +296,125 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
     P, N, _ = sample_surface(V, F_t, 20_000, seed=1)
     lap("sample 20k oriented points on the frame")
     IMLS(norm.forward(P), N)
-    lap("IMLS set-up (20k points)")
+    Coverage(norm.forward(P), N)
+    lap("IMLS + coverage set-up (20k points)")
     Vn = norm.forward(V)
     renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
     lap(f"target renders ({len(renderer.views)} views, {renderer.options.target_spp} spp)")
-    limit = _limit_mesh(norm.inverse(x0), F)
+    limit = limit_mesh(norm.inverse(x0), F, level=2)
     lap("limit mesh for output (level 2, P + du + dv rows, SciPy)")
     _frame_metrics(limit, (V, F_t), P)
     lap("metrics.csv distances (two_sided, 30k samples per side)")
     return out
+
+
+# -- probe: what the image term can add to a converged geometric fit ----------------
+PROBE_SETTINGS = [  # (resolution, spp, mode, tessellation level)
+    (96, 4, "shading", 1), (96, 64, "shading", 1), (96, 64, "silhouette", 3), (256, 16, "silhouette", 3)]
+
+
+def probe_part(args):
+    """Image gradients at the IMLS-only fit of the last frame: seed-to-seed agreement, effect of steps.
+
+    For each setting: (a) the cosine between image-loss gradients (one view)
+    from different render seeds, averaged over pairs of 4 seeds and 2 views;
+    1 means noise-free, 0 pure noise. (b) 30 joint iterations (IMLS +
+    coverage + ARAP + beta * image, 2 views each, step 0.05 of the run's
+    geometric step, as the joint phase of ``fit-sequence``) starting from the
+    converged IMLS-only fit, and the two-sided distance to the clean frame
+    before and after; a ``beta 0`` row is the same continuation without images.
+    Needs ``fit --configs imls --tag TAG`` to have run.
+    """
+    import json
+
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop import io
+    from mi_loop.fit import Normalisation, sample_parameters
+    from mi_loop.masks import limit_mesh
+    from mi_loop.metrics import sample_surface, two_sided
+    from mi_loop.operator import LimitOperator
+    from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
+    from mi_loop.variant import set_variant
+
+    set_variant("llvm_ad_rgb")
+    run = RESULTS / args.seq / f"imls{args.tag}"
+    state = json.loads((run / "sequence.json").read_text())
+    norm = Normalisation(np.asarray(state["centre"]), state["scale"])
+    box = tuple(np.asarray(c) for c in state["camera_box"])
+    data = np.load(SEQ / SEQUENCES[args.seq][0])
+    t = len(data["vertices"]) - 1
+    Vt, Ft = np.asarray(data["vertices"][t], np.float64), np.asarray(data["faces"])
+    Vc, F = io.read_mesh(run / "control" / f"{t:04d}.ply")
+    x0 = norm.forward(Vc)
+    Vn = norm.forward(Vt)
+    P, N, _ = sample_surface(Vt, Ft, 20_000, seed=5)
+    op = LimitOperator(F, len(x0), *sample_parameters(F, len(x0), "level1"), derivatives=False)
+
+    def distance(x):
+        limit = limit_mesh(norm.inverse(x), F, level=2)
+        d = two_sided(limit[0], limit[1], Vt, Ft, n_samples=30_000)
+        return d["mean"], d["rms"]
+
+    print(f"\n{args.seq}, frame {t}, start: IMLS-only fit {run.name} [{load()}]\n")
+    print("| image setting | gradient cosine between seeds | beta | mean after 30 joint its | RMS after | s |")
+    print("|---|---|---|---|---|---|")
+    m0, r0 = distance(x0)
+    print(f"| (start) | | | {m0:.6f} | {r0:.6f} | |")
+    for res, spp, mode, level in PROBE_SETTINGS:
+        options = SequenceOptions(resolution=res, spp=spp, mode=mode, level=level, target_spp=128)
+        renderer = Renderer(x0, F, box, options)
+        targets = renderer.targets(Vn, Ft, vertex_normals(Vn, Ft))
+
+        def gradient(seed, k):
+            x = mi.Float(x0.ravel().astype(np.float32))
+            dr.enable_grad(x)
+            renderer.backward(x, [k], targets, seed=seed)
+            return np.array(dr.grad(x), dtype=np.float64)
+
+        cosines = []
+        for k in (1, 7):
+            G = [gradient(seed, k) for seed in range(4)]
+            cosines += [G[i] @ G[j] / (np.linalg.norm(G[i]) * np.linalg.norm(G[j]))
+                        for i in range(4) for j in range(i + 1, 4)]
+        for beta in ([0.0, 1.0] if (res, spp) == (96, 4) else [1.0]):
+            t0 = time.perf_counter()
+            m, r = distance(joint_steps(x0, F, norm.forward(P), N, op, renderer, targets, beta,
+                                        0.05 * state["lr"], 30, options))
+            label = f"{res}^2, {spp} spp, {mode}, level {level}"
+            print(f"| {label} | {np.mean(cosines):.2f} | {beta:g} | {m:.6f} | {r:.6f} | "
+                  f"{time.perf_counter() - t0:.0f} |", flush=True)
+
+
+def joint_steps(x0, F, P, N, op, renderer, targets, beta, lr, n, options):
+    """``n`` Adam steps on IMLS + coverage + ARAP (+ beta * image over 2 random views)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop.arap import ARAP
+    from mi_loop.coverage import Coverage
+    from mi_loop.imls import IMLS
+
+    imls, cover, arap = IMLS(P, N), Coverage(P, N), ARAP(x0, F)
+    opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
+    rng = np.random.default_rng(0)
+    for it in range(n):
+        x = opt["x"]
+        Q = op.positions(x)
+        if it % 10 == 0:
+            Qn = np.array(Q, dtype=np.float64).T
+            imls.update(Qn)
+            cover.update(Qn)
+        R = arap.rotations(np.array(x, dtype=np.float64).reshape(-1, 3))
+        E = (imls.energy(Q, reduce="mean") + options.cover * cover.energy(Q)
+             + options.alpha / len(x0) * arap.energy(x, R))
+        dr.backward(E)
+        if beta > 0:
+            views = rng.choice(len(renderer.views), 2, replace=False)
+            renderer.backward(x, views, targets, seed=it, weight=beta)
+        opt.step()
+    return np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
 
 
 def main():
@@ -296,9 +428,12 @@ def main():
     fit.add_argument("--tag", default="", help="suffix of the output directory")
     cost = sub.add_parser("cost")
     cost.add_argument("--runs", type=int, default=20)
+    probe = sub.add_parser("probe")
+    probe.add_argument("--seq", choices=sorted(SEQUENCES), default="spot")
+    probe.add_argument("--tag", default="_defaults", help="suffix of the IMLS-only run to start from")
     args = parser.parse_args()
     print(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')}, nproc {os.cpu_count()}, {load()}")
-    fit_part(args) if args.part == "fit" else cost_part(args)
+    {"fit": fit_part, "cost": cost_part, "probe": probe_part}[args.part](args)
 
 
 if __name__ == "__main__":
