@@ -7,6 +7,7 @@ Layout of OUTDIR: ``control/0000.ply ...`` (one connectivity for all frames),
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import asdict
@@ -63,7 +64,30 @@ def _read_csv(path: Path):
 
 
 def run(args, start, say):
-    """Run ``mi-loop fit-sequence``; returns the written paths of the last frame and pictures."""
+    """Run ``mi-loop fit-sequence``; returns the written paths of the last frame and pictures.
+
+    A run that fails (or is interrupted) before its first frame is written
+    leaves nothing behind: the state file and the directories it created are
+    removed. Finished frames are always kept (``--resume`` continues them).
+    """
+    out = Path(args.output)
+    created = io.first_missing_ancestor(out)
+    existed = {p: p.exists() for p in (out / "control", out / "limit", out / "sequence.json")}
+    try:
+        return _run(args, start, say)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            if not (out / "metrics.csv").exists():
+                if not existed[out / "sequence.json"]:
+                    (out / "sequence.json").unlink(missing_ok=True)
+                for sub in ("control", "limit"):
+                    if not existed[out / sub]:
+                        io.remove_if_empty(out / sub, out / sub)
+                io.remove_if_empty(created, out)
+        raise
+
+
+def _run(args, start, say):
     from .fit import Normalisation, _mean_edge, sample_parameters
     from .masks import limit_mesh
     from .operator import LimitOperator

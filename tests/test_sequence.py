@@ -460,6 +460,7 @@ def test_a_frame_with_nan_coordinates_is_rejected(tmp_path, capsys):
     line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "seq.npz"), "-o",
                                    str(tmp_path / "out"), "--vertices", "42"])
     assert line == "mi-loop: error: frame seq[0]: vertex 7 has a non-finite coordinate"
+    assert not (tmp_path / "out").exists()
 
 
 def test_an_empty_directory_is_an_empty_sequence(tmp_path, capsys):
@@ -593,3 +594,15 @@ def test_image_only_needs_mesh_frames(inputs, tmp_path, capsys):
                                    "--template", str(inputs[1]), "--image-only"])
     assert line == ("mi-loop: error: fit-sequence: --image-only needs mesh frames; point-cloud frames "
                     "have no surface to render")
+    assert not (tmp_path / "out").exists()                       # nothing left behind
+
+
+def test_a_run_stopped_before_its_first_frame_leaves_an_existing_directory_as_it_was(
+        inputs, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine\n")
+    interrupt_at_frame(monkeypatch, 0)
+    assert main(argv(inputs, out, "--no-image")) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == "mi-loop: error: interrupted"
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
