@@ -31,8 +31,8 @@ from .topology import validate_mesh
 __all__ = ["make_template", "mesh_template", "poisson_depth"]
 
 
-def _fail(message: str):
-    raise ValueError(f"make_template(): {message}")
+def _fail(message: str, func: str = "make_template"):
+    raise ValueError(f"{func}(): {message}")
 
 
 def poisson_depth(n_vertices: int) -> int:
@@ -154,8 +154,10 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0):
     V : (k, 3) float NumPy array
         Vertices of the input mesh.
     F : (m, 3) int NumPy array
-        Its triangles: consistently oriented and manifold (boundaries allowed);
-        only the largest connected component is used.
+        Its triangles: consistently oriented and manifold (boundaries allowed)
+        once coincident vertices are merged (a triangle soup is welded first).
+        Only the largest connected component is used; it must hold at least
+        90 % of the area.
     n_vertices : int
         Target vertex count, at least 4.
     min_angle : float
@@ -173,7 +175,8 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0):
     ------
     ValueError
         The input fails :func:`mi_loop.validate_mesh` (the message says why),
-        ``n_vertices < 4``, or a bad ``min_angle``.
+        is in pieces (largest part below 90 % of the area), ``n_vertices < 4``,
+        or a bad ``min_angle``.
 
     Examples
     --------
@@ -187,11 +190,16 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0):
 
     t0 = time.perf_counter()
     if not int(n_vertices) == n_vertices or n_vertices < 4:
-        _fail(f"n_vertices must be an integer >= 4, got {n_vertices!r}")
+        _fail(f"n_vertices must be an integer >= 4, got {n_vertices!r}", "mesh_template")
     if not 0 <= min_angle <= 20:
-        _fail(f"min_angle must be in [0, 20] degrees, got {min_angle!r}")
-    V, F, _ = validate_mesh(np.asarray(V, dtype=np.float64), np.asarray(F), "mesh_template")
+        _fail(f"min_angle must be in [0, 20] degrees, got {min_angle!r}", "mesh_template")
+    V, F = _weld(np.asarray(V, dtype=np.float64), np.asarray(F))
+    V, F, _ = validate_mesh(V, F, "mesh_template")
+    total = _area(V, F)
     V, F = _largest_component(V, F)
+    if _area(V, F) < 0.9 * total:
+        _fail(f"the mesh is in pieces: its largest connected part holds only "
+              f"{100 * _area(V, F) / total:.0f} % of its area", "mesh_template")
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F))
     while ms.current_mesh().vertex_number() < 3 * n_vertices:
@@ -211,6 +219,22 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0):
             "min_angle": stats["min_angle"], "flips": stats["flips"], "collapses": stats["collapses"],
             "time_total": time.perf_counter() - t0}
     return Vd, Fd, info
+
+
+def _weld(V, F):
+    """Merge vertices with identical coordinates; drop faces that collapse (a soup becomes a mesh)."""
+    if F.ndim != 2 or F.shape[1] != 3 or len(V) == 0 or F.size == 0 or F.min() < 0 or F.max() >= len(V):
+        return V, F                          # let validate_mesh name the problem
+    U, inverse = np.unique(V, axis=0, return_inverse=True)
+    if len(U) == len(V):
+        return V, F
+    F = inverse.ravel()[F]
+    keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])
+    return U, F[keep]
+
+
+def _area(V, F):
+    return 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
 
 
 def _check_inputs(P, N, n_vertices, depth, min_angle, max_points):

@@ -183,11 +183,32 @@ def test_mesh_template_reaches_the_thin_parts_poisson_loses():
     assert miss_mesh < 0.02 and miss_poisson > 3 * miss_mesh, (miss_mesh, miss_poisson)
 
 
+def test_mesh_template_welds_a_triangle_soup():
+    """Every face with its own three vertices (as some OBJ exporters write): welded first."""
+    V, F = datasets.icosphere(3)
+    soup_V, soup_F = V[F].reshape(-1, 3), np.arange(3 * len(F)).reshape(-1, 3)
+    Vt, Ft, info = mesh_template(soup_V, soup_F, 150)
+    assert info["input_vertices"] == 642
+    _check_closed_valid(Vt, Ft)
+    np.testing.assert_allclose(np.linalg.norm(Vt, axis=1), 1.0, atol=0.02)
+
+
+def test_mesh_template_rejects_a_mesh_in_pieces():
+    V, F = datasets.icosphere(2)
+    two_V, two_F = np.vstack([V, V + [3.0, 0.0, 0.0]]), np.vstack([F, F + len(V)])
+    with pytest.raises(ValueError, match=r"^mesh_template\(\): the mesh is in pieces: its largest connected "
+                                         r"part holds only 50 % of its area"):
+        mesh_template(two_V, two_F, 100)
+    small = np.vstack([V, 0.2 * V + [3.0, 0.0, 0.0]])        # a 4 % speck next to the sphere is dropped
+    Vt, Ft, _ = mesh_template(small, np.vstack([F, F + len(V)]), 100)
+    assert np.linalg.norm(Vt, axis=1).max() < 1.05
+
+
 def test_mesh_template_errors():
     V, F = datasets.icosphere(1)
-    with pytest.raises(ValueError, match="make_template\\(\\): n_vertices must be an integer >= 4, got 3"):
+    with pytest.raises(ValueError, match="mesh_template\\(\\): n_vertices must be an integer >= 4, got 3"):
         mesh_template(V, F, 3)
-    with pytest.raises(ValueError, match="min_angle must be in"):
+    with pytest.raises(ValueError, match="mesh_template\\(\\): min_angle must be in \\[0, 20\\] degrees, got 25"):
         mesh_template(V, F, 100, min_angle=25)
     bad = np.vstack([F, [[0, 1, 2]]])                   # one face twice: not a manifold
     with pytest.raises(ValueError, match="^mesh_template\\(\\): vertex 0 is non-manifold"):
