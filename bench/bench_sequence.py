@@ -19,6 +19,10 @@ Two parts, each printing Markdown tables:
     limit mesh (one view, the default resolution and spp), on the spot
     template; then the per-frame work outside the iterations (target renders,
     IMLS set-up, output mesh, metrics).
+``folds``
+    Share of each frame's limit surface (of finished ``fit`` runs) whose
+    normal points against the nearest target face's: folds where the surface
+    turned over on itself.
 ``probe``
     What the image term adds once the geometry has converged: at the last
     frame of an IMLS-only run, the agreement of image gradients between render
@@ -32,6 +36,7 @@ Usage::
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py fit --seq spot --frames 4 --configs image \\
         --extra="--beta 4"                                               # a settings sweep point
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py cost
+    PYTHONPATH=. .venv/bin/python bench/bench_sequence.py folds --tag _defaults
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py probe --seq spot   # after fit --tag _defaults
 
 Runs go to ``bench/results/sequence/`` (not tracked). Every table repeats the
@@ -308,6 +313,49 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
     return out
 
 
+# -- folds: area of the limit surface facing the wrong way ------------------------
+def flipped_fraction(V_lim, F_lim, V, F) -> float:
+    """Share of the limit surface's area whose normal points against the nearest target face's.
+
+    A fold (the surface turned over on itself) shows as such area. Near the
+    target's sharp edges the nearest face can be the neighbour across the
+    edge, so a faceted target gives a small non-zero floor.
+    """
+    from mi_loop.metrics import closest_points
+
+    def unit_normals(A, T):
+        n = np.cross(A[T[:, 1]] - A[T[:, 0]], A[T[:, 2]] - A[T[:, 0]])
+        length = np.linalg.norm(n, axis=1)
+        return n / np.maximum(length[:, None], 1e-300), length
+
+    n, area = unit_normals(V_lim, F_lim)
+    _, _, face = closest_points(V, F, V_lim[F_lim].mean(1))
+    n_target, _ = unit_normals(V, F)
+    flipped = np.einsum("ij,ij->i", n, n_target[face]) < 0
+    return float(area[flipped].sum() / area.sum())
+
+
+def folds_part(args):
+    """Flipped area (% of the limit surface) per frame of finished ``fit`` runs."""
+    from mi_loop import io
+
+    print(f"\nFlipped area, % of the limit surface (runs tagged '{args.tag}') [{load()}]\n")
+    print("| sequence | config | frame 0 | middle frame | last frame | largest (frame) |")
+    print("|---|---|---|---|---|---|")
+    for name in args.seq:
+        data = np.load(SEQ / SEQUENCES[name][0])
+        Vs, F = np.asarray(data["vertices"], np.float64), np.asarray(data["faces"])
+        for config in args.configs:
+            out = RESULTS / name / f"{config}{args.tag}"
+            if not (out / "limit").is_dir():
+                continue
+            pct = [100 * flipped_fraction(*io.read_mesh(out / "limit" / f"{t:04d}.ply"), Vs[t], F)
+                   for t in range(len(Vs))]
+            worst = int(np.argmax(pct))
+            print(f"| {name} | {LABELS[config]} | {pct[0]:.2f} | {pct[len(pct) // 2]:.2f} | {pct[-1]:.2f} | "
+                  f"{pct[worst]:.2f} ({worst}) |", flush=True)
+
+
 # -- probe: what the image term can add to a converged geometric fit ----------------
 PROBE_SETTINGS = [  # (resolution, spp, mode, tessellation level)
     (96, 4, "shading", 1), (96, 64, "shading", 1), (96, 64, "silhouette", 3), (256, 16, "silhouette", 3)]
@@ -428,12 +476,16 @@ def main():
     fit.add_argument("--tag", default="", help="suffix of the output directory")
     cost = sub.add_parser("cost")
     cost.add_argument("--runs", type=int, default=20)
+    folds = sub.add_parser("folds")
+    folds.add_argument("--seq", nargs="+", choices=sorted(SEQUENCES), default=["spot", "fox"])
+    folds.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=list(CONFIGS))
+    folds.add_argument("--tag", default="_defaults", help="suffix of the runs' output directories")
     probe = sub.add_parser("probe")
     probe.add_argument("--seq", choices=sorted(SEQUENCES), default="spot")
     probe.add_argument("--tag", default="_defaults", help="suffix of the IMLS-only run to start from")
     args = parser.parse_args()
     print(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')}, nproc {os.cpu_count()}, {load()}")
-    {"fit": fit_part, "cost": cost_part, "probe": probe_part}[args.part](args)
+    {"fit": fit_part, "cost": cost_part, "folds": folds_part, "probe": probe_part}[args.part](args)
 
 
 if __name__ == "__main__":
