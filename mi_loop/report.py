@@ -28,11 +28,12 @@ def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=100)
     it = np.arange(1, len(history["total"]) + 1)
+    styles = {"total": {"color": "black", "linestyle": "--", "zorder": 3}}   # on top of the term it follows
     for key, label in (("total", "total E"), ("imls", "IMLS (mean f^2)"), ("cover", "cover * coverage"),
                        ("arap", "alpha * ARAP / n")):
         values = np.asarray(history.get(key, []))
         if len(values) and (values > 0).any():
-            ax.semilogy(it, np.maximum(values, 1e-30), label=label)
+            ax.semilogy(it, np.maximum(values, 1e-30), label=label, **styles.get(key, {}))
     floor = min(np.min(np.asarray(history[k])[np.asarray(history[k]) > 0], initial=np.inf)
                 for k in ("total", "imls"))
     if np.isfinite(floor):
