@@ -11,7 +11,8 @@ import trimesh
 import mi_loop
 from mi_loop import datasets
 from mi_loop.io_points import load_oriented_points
-from mi_loop.template import _angles, _remove_slivers, make_template, mesh_template, poisson_depth
+from mi_loop.slivers import angles, remove_slivers
+from mi_loop.template import make_template, mesh_template, poisson_depth
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
@@ -40,7 +41,7 @@ def _check_closed_valid(V, F, genus=0, min_angle=10.0):
     assert len(V) - len(counts) + len(F) == 2 - 2 * genus  # Euler characteristic
     volume = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6
     assert volume > 0                                     # outward
-    assert _angles(V, F).min() >= min_angle
+    assert angles(V, F).min() >= min_angle
     labels = trimesh.graph.connected_components(E, nodes=np.arange(len(V)))
     assert len(labels) == 1
 
@@ -73,7 +74,7 @@ def test_open_scan_keeps_its_boundary():
         warnings.simplefilter("error")
         mi_loop.validate_mesh(V, F)
     assert info["boundary_edges"] > 0 and info["genus"] is None
-    assert abs(len(V) - 800) <= 0.03 * 800 and _angles(V, F).min() >= 10
+    assert abs(len(V) - 800) <= 0.03 * 800 and angles(V, F).min() >= 10
     from scipy.spatial import cKDTree
 
     normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
@@ -103,8 +104,8 @@ def test_remove_slivers_fixes_needles_and_caps():
         w = F[np.flatnonzero((F == v).any(1))[0]]
         w = w[w != v][0]
         V[v] = V[w] + 0.02 * (V[v] - V[w])
-    assert _angles(V, F).min() < 2
-    V2, F2, stats = _remove_slivers(V, F, np.asarray(fine.vertices), np.asarray(fine.faces), 10.0)
+    assert angles(V, F).min() < 2
+    V2, F2, stats = remove_slivers(V, F, np.asarray(fine.vertices), np.asarray(fine.faces), 10.0)
     _check_closed_valid(V2, F2)
     assert stats["min_angle"] >= 10 and stats["flips"] + stats["collapses"] > 0
     assert len(V2) >= len(V) - 3
