@@ -214,7 +214,7 @@ def cost_part(args):
     fid, uv = sample_parameters(F, len(x0), "level1")       # the CLI's default --samples
     op = LimitOperator(F, len(x0), fid, uv, derivatives=False)
     imls = IMLS(norm.forward(P), N)
-    cover = Coverage(norm.forward(P), N)
+    cover = Coverage(norm.forward(P), N, tree=imls.tree)
     arap = ARAP(x0, F)
     lo, hi = x0.min(0), x0.max(0)
     pad = 0.15 * (hi - lo).max()
@@ -300,8 +300,8 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
 
     P, N, _ = sample_surface(V, F_t, 20_000, seed=1)
     lap("sample 20k oriented points on the frame")
-    IMLS(norm.forward(P), N)
-    Coverage(norm.forward(P), N)
+    Pn = norm.forward(P)
+    Coverage(Pn, N, tree=IMLS(Pn, N).tree)
     lap("IMLS + coverage set-up (20k points)")
     Vn = norm.forward(V)
     renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
@@ -444,7 +444,8 @@ def joint_steps(x0, F, P, N, op, renderer, targets, beta, lr, n, options):
     from mi_loop.coverage import Coverage
     from mi_loop.imls import IMLS
 
-    imls, cover, arap = IMLS(P, N), Coverage(P, N), ARAP(x0, F)
+    imls, arap = IMLS(P, N), ARAP(x0, F)
+    cover = Coverage(P, N, tree=imls.tree)
     opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
     rng = np.random.default_rng(0)
     for it in range(n):

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .imls import _aligned, _finite_rows, _upload_vec
+from .imls import _aligned, _finite_rows, _unit_normals, _upload_vec
 
 __all__ = ["Coverage"]
 
@@ -39,6 +39,9 @@ class Coverage:
     isolation : float
         Points whose 8th-nearest-neighbour distance exceeds this multiple
         of the median one get weight 0 (see the module notes).
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of the same points to reuse (``IMLS.tree`` when both terms
+        are built on one point set); built here otherwise.
 
     Examples
     --------
@@ -55,7 +58,7 @@ class Coverage:
     0.01
     """
 
-    def __init__(self, points, normals, isolation: float = 3.0):
+    def __init__(self, points, normals, isolation: float = 3.0, tree=None):
         import mitsuba as mi
 
         P = np.asarray(points, dtype=np.float64)
@@ -65,19 +68,17 @@ class Coverage:
         if N.shape != P.shape:
             raise ValueError(f"Coverage: normals must have the points' shape {P.shape}, got {N.shape}")
         _finite_rows(P, "point", "Coverage")
-        _finite_rows(N, "normal", "Coverage")
-        length = np.linalg.norm(N, axis=1)
-        if (length == 0).any():
-            raise ValueError(f"Coverage: normal {int(np.flatnonzero(length == 0)[0])} has zero length")
+        N = _unit_normals(N, "Coverage")
         if not isolation > 1:
             raise ValueError(f"Coverage: isolation must be a number > 1, got {isolation!r}")
-        self.points, self.normals = P, N / length[:, None]
-        self.weight = _not_isolated(P, isolation).astype(np.float64)
+        if tree is not None and not (tree.n == len(P) and np.array_equal(tree.data, P)):
+            raise ValueError("Coverage: tree must be a k-d tree of these points (e.g. IMLS(points, ...).tree)")
+        self.points, self.normals = P, N
+        self.weight = _not_isolated(P, isolation, tree).astype(np.float64)
         self._w = mi.Float(_aligned(self.weight / self.weight.sum(), np.float32))
         self._p = _upload_vec_f(self.points)
         self._n = _upload_vec_f(self.normals, vector=True)
         self.nearest = None
-        self.distance = None
 
     def update(self, Q):
         """Find each data point's nearest sample (NumPy/SciPy) and upload the indices.
@@ -89,8 +90,7 @@ class Coverage:
 
         Notes
         -----
-        Sets :attr:`nearest` ``(N,)`` (sample index per data point) and
-        :attr:`distance` ``(N,)`` (Euclidean distance to it).
+        Sets :attr:`nearest` ``(N,)``, the sample index of every data point.
         """
         import mitsuba as mi
 
@@ -98,7 +98,7 @@ class Coverage:
         if Q.ndim != 2 or Q.shape[1] != 3 or len(Q) == 0:
             raise ValueError(f"Coverage.update: samples must have shape (k, 3) with k >= 1, got {Q.shape}")
         _finite_rows(Q, "sample", "Coverage.update")
-        self.distance, self.nearest = cKDTree(Q).query(self.points, workers=-1)
+        self.nearest = cKDTree(Q).query(self.points, workers=-1)[1]
         self.n_samples = len(Q)
         self._idx = mi.UInt32(_aligned(self.nearest, np.uint32))
 
@@ -116,11 +116,11 @@ class Coverage:
         return dr.sum(self._w * dr.square(dr.dot(self._n, q - self._p)))
 
 
-def _not_isolated(P, isolation: float, m: int = 8):
+def _not_isolated(P, isolation: float, tree=None, m: int = 8):
     """Mask of points whose ``m``-th nearest other point lies within ``isolation`` x the median's."""
     if len(P) <= m:
         return np.ones(len(P), dtype=bool)
-    d = cKDTree(P).query(P, k=m + 1, workers=-1)[0][:, m]
+    d = (cKDTree(P) if tree is None else tree).query(P, k=m + 1, workers=-1)[0][:, m]
     return d <= isolation * np.median(d)
 
 

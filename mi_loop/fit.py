@@ -197,7 +197,7 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
 
     t = time.perf_counter()
     imls = IMLS(Pn, N, h0=h0)
-    coverage = Coverage(Pn, N) if cover > 0 else None
+    coverage = Coverage(Pn, N, tree=imls.tree) if cover > 0 else None
     arap = ARAP(V0, F)
     alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
     timings["energies"] = time.perf_counter() - t

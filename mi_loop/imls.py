@@ -46,6 +46,16 @@ def _finite_rows(A: np.ndarray, what: str, func: str = "IMLS"):
         raise ValueError(f"{func}: {what} {bad[0]} = {A[bad[0]].tolist()} is not finite (NaN or inf)")
 
 
+def _unit_normals(N: np.ndarray, func: str = "IMLS") -> np.ndarray:
+    """Finite, non-zero normals ``(N, 3)`` scaled to unit length (IMLS and coverage share it)."""
+    _finite_rows(N, "normal", func)
+    length = np.linalg.norm(N, axis=1)
+    bad = np.flatnonzero(length == 0)
+    if len(bad):
+        raise ValueError(f"{func}: normal {bad[0]} has zero length; drop that point or give it a normal")
+    return N / length[:, None]
+
+
 class IMLS:
     r"""Implicit moving least-squares surface of oriented points (Oeztireli et al. 2009).
 
@@ -140,11 +150,7 @@ class IMLS:
         if N.shape != P.shape:
             _fail(f"normals must have the shape of points {P.shape}, got {N.shape}")
         _finite_rows(P, "point")
-        _finite_rows(N, "normal")
-        length = np.linalg.norm(N, axis=1)
-        bad = np.flatnonzero(length == 0)
-        if len(bad):
-            _fail(f"normal {bad[0]} has zero length; drop that point or give it a normal")
+        N = _unit_normals(N)
         if int(min_neighbors) != min_neighbors or min_neighbors < 1:
             _fail(f"min_neighbors must be a positive integer, got {min_neighbors!r}")
         if int(max_neighbors) != max_neighbors or max_neighbors < min_neighbors:
@@ -159,7 +165,7 @@ class IMLS:
             _fail(f"max_growths must be a non-negative integer, got {max_growths!r}")
         self.min_neighbors, self.max_neighbors = int(min_neighbors), int(max_neighbors)
         self.growth, self.max_growths = float(growth), int(max_growths)
-        self.points, self.normals = P, N / length[:, None]
+        self.points, self.normals = P, N
         self.tree = cKDTree(P)
         if h0 is None:
             d, _ = self.tree.query(P, k=min(self.min_neighbors + 1, len(P)), workers=-1)

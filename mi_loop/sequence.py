@@ -207,7 +207,7 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     n = len(x0)
     arap = ARAP(x0, F)                 # rest = previous frame's fit
     imls = IMLS(points, normals) if options.geometric else None
-    cover = Coverage(points, normals) if options.geometric and options.cover > 0 else None
+    cover = Coverage(points, normals, tree=imls.tree) if options.geometric and options.cover > 0 else None
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
     rng = np.random.default_rng([options.seed, frame])
     if imls is not None:

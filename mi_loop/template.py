@@ -198,9 +198,10 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0):
     V, F, _ = validate_mesh(V, F, "mesh_template")
     total = _area(V, F)
     V, F = _largest_component(V, F)
-    if _area(V, F) < 0.9 * total:
-        _fail(f"the mesh is in pieces: its largest connected part holds only "
-              f"{100 * _area(V, F) / total:.0f} % of its area", "mesh_template")
+    share = _area(V, F) / total
+    if share < 0.9:
+        _fail(f"the mesh is in pieces: its largest connected part holds only {100 * share:.0f} % of its area",
+              "mesh_template")
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F))
     while ms.current_mesh().vertex_number() < 3 * n_vertices:

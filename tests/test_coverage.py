@@ -5,6 +5,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from mi_loop.coverage import Coverage
 from mi_loop.datasets import icosphere
@@ -80,6 +81,12 @@ def test_gradient_through_the_limit_operator_with_imls_is_the_sum_of_both():
     np.testing.assert_allclose(g_both, g_imls + g_cover, rtol=0, atol=1e-5 * np.abs(g_both).max())
 
 
+def test_a_shared_tree_gives_the_same_weights(cloud):
+    P, N, _ = cloud
+    own, shared = Coverage(P, N), Coverage(P, N, tree=IMLS(P, N).tree)
+    np.testing.assert_array_equal(shared.weight, own.weight)
+
+
 def test_coverage_pulls_the_fit_out_to_a_spike():
     """A unit sphere with a narrow bump 0.5 high: IMLS alone stops short of its tip; coverage reaches it."""
     from mi_loop.masks import limit_mesh
@@ -129,6 +136,9 @@ def test_isolated_points_are_left_out():
     (lambda P, N: Coverage(P, np.where(np.arange(300)[:, None] == 4, 0.0, N)),
      r"Coverage: normal 4 has zero length"),
     (lambda P, N: Coverage(P, N, isolation=1.0), r"Coverage: isolation must be a number > 1, got 1.0"),
+    (lambda P, N: Coverage(P, N, tree=cKDTree(P[:-1])),
+     r"Coverage: tree must be a k-d tree of these points \(e.g. IMLS\(points, ...\).tree\)"),
+    (lambda P, N: Coverage(P, N, tree=cKDTree(P + 1.0)), r"Coverage: tree must be a k-d tree of these points"),
 ])
 def test_bad_inputs_are_named(cloud, call, message):
     P, N, _ = cloud
