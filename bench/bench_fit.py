@@ -1,4 +1,4 @@
-"""Benchmark static fitting (:func:`mi_loop.fit.fit`): time per stage and accuracy.
+"""Benchmark static fitting (:func:`mi_loop.fitting.static.fit`): time per stage and accuracy.
 
 Three parts, each printing Markdown tables:
 
@@ -88,8 +88,8 @@ def table(title: str, columns, rows) -> None:
 
 def limit_surface(V, F, level: int, cache: dict):
     """Limit points of a level-``level`` tessellation ``(V_lim, F_tess)``; the matrix is cached per ``F``."""
-    from mi_loop.limit import limit_matrix
-    from mi_loop.tessellation import tessellate
+    from mi_loop.subdiv.limit import limit_matrix
+    from mi_loop.subdiv.tessellation import tessellate
 
     key = (F.tobytes(), level)
     if key not in cache:
@@ -119,7 +119,7 @@ def pct(x):
 
 def run_fits(P, N, runs: int, **kw):
     """``runs`` fits with the same arguments; returns (results, per-stage list of seconds)."""
-    from mi_loop.fit import fit
+    from mi_loop.fitting.static import fit
 
     results = [fit(P, N, **(FIT_OPTIONS | kw)) for _ in range(runs)]
     times = {s: [r.timings[s] for r in results] for s in STAGES}
@@ -146,7 +146,7 @@ def poisson_depth8(P, N):
 
 
 def bench_scan(args, out: list) -> None:
-    from mi_loop.io_points import load_oriented_points
+    from mi_loop.io.points import load_oriented_points
     from mi_loop.metrics import two_sided
 
     P, N, _ = load_oriented_points(SCAN)
@@ -217,7 +217,7 @@ def nps_row(label, V_lim, F_lim, target, ref=None):
 
 def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_row=False, visible=False,
                     **kw):
-    from mi_loop.fit import fit
+    from mi_loop.fitting.static import fit
 
     r = fit(P, N, n_vertices=1000, **(FIT_OPTIONS | kw))
     s = fit_summary(r)
@@ -231,7 +231,7 @@ def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_ro
     V_lim, F_lim = limit_surface(r.V, r.F, 3, cache)
     m, row = nps_row(label, V_lim, F_lim, target, ref)
     if visible:                                  # input points to the fit, same units as P2S / HD
-        from mi_loop.metrics import surface_distances
+        from mi_loop.mesh.sampling import surface_distances
 
         d = surface_distances(V_lim, F_lim, P) * m["scale"]
         m |= {"input_to_fit_mean": float(d.mean()), "input_to_fit_max": float(d.max())}
@@ -243,7 +243,7 @@ def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_ro
 
 def bench_nps(args, out: list) -> None:
     from mi_loop.io import read_mesh
-    from mi_loop.io_points import load_oriented_points
+    from mi_loop.io.points import load_oriented_points
 
     rows, cache = [], {}
     for name, (p2s, hd, nae) in NPS_TABLE1.items():
@@ -284,7 +284,7 @@ def corrupt(P, N, kind: str, seed: int = 0):
 
 def bench_robust(args, out: list) -> None:
     from mi_loop.io import read_mesh
-    from mi_loop.io_points import load_oriented_points
+    from mi_loop.io.points import load_oriented_points
 
     path = STATIC / "bunny.obj"
     target = read_mesh(path)

@@ -130,7 +130,7 @@ def random_samples(m, k, seed=0):
 # -- measurements ----------------------------------------------------------------
 def bench_build(V, F, fid, uv, runs, res):
     from mi_loop import LimitOperator
-    from mi_loop.limit import _check_samples, build_hierarchy, level_rows
+    from mi_loop.subdiv.limit import _check_samples, build_hierarchy, level_rows
 
     n = len(V)
     # One untimed warm-up per step: the first large allocations page-fault.

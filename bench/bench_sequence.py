@@ -194,15 +194,17 @@ def cost_part(args):
     import drjit as dr
     import mitsuba as mi
 
-    from mi_loop.arap import ARAP
-    from mi_loop.coverage import Coverage
-    from mi_loop.fit import Normalisation, sample_parameters
-    from mi_loop.imls import IMLS
-    from mi_loop.metrics import sample_surface
-    from mi_loop.operator import LimitOperator
-    from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
-    from mi_loop.template import mesh_template
-    from mi_loop.variant import set_variant
+    from mi_loop.energies.arap import ARAP
+    from mi_loop.energies.coverage import Coverage
+    from mi_loop.fitting.static import Normalisation, sample_parameters
+    from mi_loop.energies.imls import IMLS
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.sequence import SequenceOptions
+from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.render.multiview import Renderer
+    from mi_loop.fitting.template import mesh_template
+    from mi_loop.render.variant import set_variant
 
     set_variant("llvm_ad_rgb")
     data = np.load(SEQ / SEQUENCES["spot"][0])
@@ -218,7 +220,7 @@ def cost_part(args):
     arap = ARAP(x0, F)
     lo, hi = x0.min(0), x0.max(0)
     pad = 0.15 * (hi - lo).max()
-    renderer = Renderer(x0, F, (lo - pad, hi + pad), options)
+    renderer = Renderer(x0, F, (lo - pad, hi + pad), options.rig)
     Vn = norm.forward(V)
     targets = renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
     alpha = dr.opaque(mi.Float, options.alpha / len(x0))
@@ -284,12 +286,12 @@ def cost_part(args):
 
 def per_frame_costs(V, F_t, x0, F, norm, renderer):
     """Seconds of the per-frame steps of ``mi-loop fit-sequence`` that are not iterations."""
-    from mi_loop.coverage import Coverage
-    from mi_loop.imls import IMLS
-    from mi_loop.masks import limit_mesh
-    from mi_loop.metrics import sample_surface
-    from mi_loop.sequence import vertex_normals
-    from mi_loop.sequence_job import _frame_metrics
+    from mi_loop.energies.coverage import Coverage
+    from mi_loop.energies.imls import IMLS
+    from mi_loop.subdiv.masks import limit_mesh
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.mesh.geometry import vertex_normals
+    from mi_loop.app.sequence_job import _frame_metrics
 
     out, t = {}, time.perf_counter()
 
@@ -321,7 +323,7 @@ def flipped_fraction(V_lim, F_lim, V, F) -> float:
     target's sharp edges the nearest face can be the neighbour across the
     edge, so a faceted target gives a small non-zero floor.
     """
-    from mi_loop.metrics import closest_points
+    from mi_loop.mesh.sampling import closest_points
 
     def unit_normals(A, T):
         n = np.cross(A[T[:, 1]] - A[T[:, 0]], A[T[:, 2]] - A[T[:, 0]])
@@ -379,12 +381,15 @@ def probe_part(args):
     import mitsuba as mi
 
     from mi_loop import io
-    from mi_loop.fit import Normalisation, sample_parameters
-    from mi_loop.masks import limit_mesh
-    from mi_loop.metrics import sample_surface, two_sided
-    from mi_loop.operator import LimitOperator
-    from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
-    from mi_loop.variant import set_variant
+    from mi_loop.fitting.static import Normalisation, sample_parameters
+    from mi_loop.subdiv.masks import limit_mesh
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.metrics import two_sided
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.sequence import SequenceOptions
+from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.render.multiview import Renderer
+    from mi_loop.render.variant import set_variant
 
     set_variant("llvm_ad_rgb")
     run = RESULTS / args.seq / f"imls{args.tag}"
@@ -412,7 +417,7 @@ def probe_part(args):
     print(f"| (start) | | | {m0:.6f} | {r0:.6f} | |")
     for res, spp, mode, level in PROBE_SETTINGS:
         options = SequenceOptions(resolution=res, spp=spp, mode=mode, level=level, target_spp=128)
-        renderer = Renderer(x0, F, box, options)
+        renderer = Renderer(x0, F, box, options.rig)
         targets = renderer.targets(Vn, Ft, vertex_normals(Vn, Ft))
 
         def gradient(seed, k):
@@ -440,9 +445,9 @@ def joint_steps(x0, F, P, N, op, renderer, targets, beta, lr, n, options):
     import drjit as dr
     import mitsuba as mi
 
-    from mi_loop.arap import ARAP
-    from mi_loop.coverage import Coverage
-    from mi_loop.imls import IMLS
+    from mi_loop.energies.arap import ARAP
+    from mi_loop.energies.coverage import Coverage
+    from mi_loop.energies.imls import IMLS
 
     imls, arap = IMLS(P, N), ARAP(x0, F)
     cover = Coverage(P, N, tree=imls.tree)

@@ -29,10 +29,12 @@ from tqdm import trange
 
 import mi_loop
 from mi_loop import datasets, io, render
-from mi_loop.arap import ARAP
-from mi_loop.limit import limit_matrix
+from mi_loop.energies.arap import ARAP
+from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.metrics import two_sided
-from mi_loop.sequence import Renderer, SequenceOptions, vertex_normals
+from mi_loop.fitting.sequence import SequenceOptions
+from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.render.multiview import Renderer
 
 OUT = Path(__file__).resolve().parent.parent / "out"
 TARGET = Path(__file__).resolve().parents[2] / "shared" / "data" / "static" / "spot.obj"
@@ -66,7 +68,7 @@ def main() -> None:
     V0, F = datasets.icosphere(2)
     V0 = 0.5 * (lo + hi) + 0.5 * (hi - lo) * V0          # sphere -> ellipsoid filling the bbox
 
-    renderer = Renderer(V0, F, (lo, hi), OPTIONS)          # fixed cameras framing the target
+    renderer = Renderer(V0, F, (lo, hi), OPTIONS.rig)          # fixed cameras framing the target
     targets = renderer.targets(V_target, F_target, vertex_normals(V_target, F_target))
     before = show(renderer, V0)
 

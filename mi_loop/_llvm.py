@@ -5,7 +5,9 @@ Dr.Jit loads libLLVM when ``drjit`` is first imported and reads the
 Debian 12's default libLLVM 15 crashes while compiling Mitsuba kernels
 (``LLVM ERROR: Cannot select: ... fminimum``); libLLVM 19 from the
 ``libllvm19`` package works. :func:`configure_llvm` runs once when
-:mod:`mi_loop` is imported, before anything imports ``drjit``.
+:mod:`mi_loop` is imported (it sets the variable, never raises);
+:func:`check_loaded_llvm` runs when a variant is set and stops with one line
+naming the fix before a crashing library is used.
 
 This module uses the standard library only, so ``setup.sh`` can run it as a
 script (``python3 mi_loop/_llvm.py``) to ask whether a usable libLLVM exists
@@ -18,7 +20,7 @@ import os
 import re
 import sys
 
-__all__ = ["MIN_LLVM_VERSION", "configure_llvm", "find_libllvm", "libllvm_version"]
+__all__ = ["MIN_LLVM_VERSION", "check_loaded_llvm", "configure_llvm", "find_libllvm", "libllvm_version"]
 
 #: Oldest LLVM major version whose code generation handles Mitsuba's kernels.
 MIN_LLVM_VERSION = 16
@@ -110,7 +112,7 @@ def find_libllvm(root: str = "/") -> tuple[str, int] | None:
 
 
 def configure_llvm(environ=None, modules=None, root: str = "/") -> str | None:
-    """Make Dr.Jit load libLLVM >= 16, or fail with a one-line fix.
+    """Point Dr.Jit at the newest libLLVM >= 16 before ``drjit`` is imported; never raise.
 
     Parameters
     ----------
@@ -125,41 +127,71 @@ def configure_llvm(environ=None, modules=None, root: str = "/") -> str | None:
     Returns
     -------
     str or None
-        The libLLVM path now in ``DRJIT_LIBLLVM_PATH``, or None when the
-        choice was already made (variable set by the user, or ``drjit``
-        imported before :mod:`mi_loop` with a working LLVM).
-
-    Raises
-    ------
-    RuntimeError
-        If only libLLVM <= 15 (or none) is found, or if ``drjit`` was imported
-        first and loaded such a library. The message says what to install.
+        The libLLVM path now in ``DRJIT_LIBLLVM_PATH``, or None when nothing
+        was set: the variable was set by the user, ``drjit`` was imported
+        already, or no libLLVM >= 16 was found.
 
     Notes
     -----
     Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` once, when ``drjit`` is imported, so
-    the variable only helps before that; afterwards the loaded version is
-    checked with ``drjit.detail.llvm_version()``. A user-set variable is
-    respected as is.
+    the variable only helps before that. ``import mi_loop`` calls this and
+    must not fail on a machine without a usable libLLVM (the NumPy limit
+    evaluation works there); :func:`check_loaded_llvm`, called by
+    :func:`mi_loop.set_variant` and :func:`mi_loop.register`, stops before an
+    LLVM variant is used with a library that would crash.
     """
     environ = os.environ if environ is None else environ
     modules = sys.modules if modules is None else modules
-    if "drjit" in modules:
-        version = modules["drjit"].detail.llvm_version()[0]
-        if version < MIN_LLVM_VERSION:
-            loaded = f"loaded LLVM {version}" if version > 0 else "no libLLVM loaded"
-            raise _error(f"{loaded}, and drjit was imported before mi_loop")
-        return None
-    if environ.get("DRJIT_LIBLLVM_PATH"):
+    if "drjit" in modules or environ.get("DRJIT_LIBLLVM_PATH"):
         return None
     best = find_libllvm(root)
-    if best is None:
-        raise _error("no libLLVM found")
-    path, version = best
-    if version < MIN_LLVM_VERSION:
-        raise _error(f"newest found is LLVM {version}: {path}")
-    environ["DRJIT_LIBLLVM_PATH"] = path
-    return path
+    if best is None or best[1] < MIN_LLVM_VERSION:
+        return None
+    environ["DRJIT_LIBLLVM_PATH"] = best[0]
+    return best[0]
+
+
+def check_loaded_llvm(modules=None, environ=None, root: str = "/") -> int:
+    """Check that the libLLVM Dr.Jit loaded is version 16 or newer; return its major version.
+
+    Parameters
+    ----------
+    modules : mapping, optional
+        Loaded modules (default ``sys.modules``); ``drjit`` is imported if absent.
+    environ : mapping, optional
+        Environment, for the message (default ``os.environ``).
+    root : str, optional
+        File-system root searched for a better library, for the message.
+
+    Returns
+    -------
+    int
+        The loaded LLVM major version.
+
+    Raises
+    ------
+    RuntimeError
+        One line naming the fix, if no libLLVM is loaded or it is older than 16
+        (Debian 12's LLVM 15 aborts the process while compiling Mitsuba's kernels).
+    """
+    modules = sys.modules if modules is None else modules
+    environ = os.environ if environ is None else environ
+    if "drjit" not in modules:
+        import drjit  # noqa: F401  (loads libLLVM, reading DRJIT_LIBLLVM_PATH)
+        modules = sys.modules
+    version = modules["drjit"].detail.llvm_version()[0]
+    if version >= MIN_LLVM_VERSION:
+        return version
+    loaded = f"loaded LLVM {version}" if version > 0 else "no libLLVM loaded"
+    if environ.get("DRJIT_LIBLLVM_PATH"):
+        loaded += f" from DRJIT_LIBLLVM_PATH={environ['DRJIT_LIBLLVM_PATH']}"
+    else:
+        best = find_libllvm(root)
+        if best is not None and best[1] >= MIN_LLVM_VERSION:
+            loaded += f"; {best[0]} would work: import mi_loop before drjit and mitsuba"
+        elif best is not None:
+            loaded += f"; newest found is LLVM {best[1]}: {best[0]}"
+    raise _error(loaded)
 
 
 if __name__ == "__main__":  # used by setup.sh before the venv exists

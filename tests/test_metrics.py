@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from mi_loop.metrics import (_closest_on_triangles, closest_points, nps_metrics, sample_surface,
-                             surface_distances, two_sided)
+from mi_loop.mesh.sampling import _closest_on_triangles, closest_points, sample_surface, surface_distances
+from mi_loop.metrics import nps_metrics, two_sided
 
 
 def _icosphere(subdivisions, radius=1.0):
@@ -148,31 +148,31 @@ def test_nps_metrics_are_scale_invariant():
 
 def test_errors():
     V, F = _icosphere(1)
-    with pytest.raises(ValueError, match="vertices must have shape"):
+    with pytest.raises(ValueError, match=r"closest_points\(\): expected mesh vertices of shape \(n, 3\) with n > 0, got shape \(42, 2\)"):
         closest_points(V[:, :2], F, V)
-    with pytest.raises(ValueError, match="face 3 = .* outside"):
+    with pytest.raises(ValueError, match=r"closest_points\(\): expected mesh face indices in \[0, 42\), got face 3 = \[.*99"):
         G = F.copy()
         G[3, 1] = 99
         closest_points(V, G, V)
-    with pytest.raises(ValueError, match="non-empty integer array"):
+    with pytest.raises(ValueError, match=r"closest_points\(\): expected mesh faces as a non-empty integer array of shape \(m, 3\), got float64"):
         closest_points(V, F.astype(float), V)
     Q = V.copy()
     Q[2, 0] = np.nan
-    with pytest.raises(ValueError, match="points row 2 is not finite"):
+    with pytest.raises(ValueError, match=r"closest_points\(\): expected finite points, got row 2 = \[nan"):
         surface_distances(V, F, Q)
     W = V.copy()
     W[4, 1] = np.inf
-    with pytest.raises(ValueError, match="vertex 4 is not finite"):
+    with pytest.raises(ValueError, match=r"closest_points\(\): expected finite mesh vertices, got vertex 4 = \[.*inf"):
         closest_points(W, F, V)
-    with pytest.raises(ValueError, match="n must be a positive integer"):
+    with pytest.raises(ValueError, match=r"sample_surface\(\): expected a positive integer n, got 0"):
         sample_surface(V, F, 0)
-    with pytest.raises(ValueError, match="zero surface area"):
+    with pytest.raises(ValueError, match=r"sample_surface\(\): expected a mesh with a positive surface area, got zero area"):
         sample_surface(np.zeros((3, 3)), np.array([[0, 1, 2]]), 5)
-    with pytest.raises(ValueError, match="zero diagonal"):
+    with pytest.raises(ValueError, match=r"two_sided\(\): expected a target with a bounding box of non-zero diagonal, got zero diagonal"):
         two_sided(V, F, np.zeros((4, 3)))
-    with pytest.raises(ValueError, match="target has zero extent"):
+    with pytest.raises(ValueError, match=r"nps_metrics\(\): expected a target of non-zero extent, got zero extent"):
         nps_metrics((V, F), (np.zeros((3, 3)), np.array([[0, 1, 2]])))
-    with pytest.raises(ValueError, match="target must have shape"):
+    with pytest.raises(ValueError, match=r"two_sided\(\): expected target of shape \(k, 3\) with k > 0, got shape \(0, 3\)"):
         two_sided(V, F, np.zeros((0, 3)), F)
-    with pytest.raises(ValueError, match="target face 0 .* outside"):
+    with pytest.raises(ValueError, match=r"two_sided\(\): expected target face indices in \[0, 2\), got face 0"):
         two_sided(V, F, V[:2], F)

@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from conftest import REPO
+from helpers import REPO
 
 README = (REPO / "README.md").read_text()
 FENCE = re.compile(r"```(\w*)\n(.*?)```", re.S)

@@ -1,0 +1,163 @@
+"""Output files written atomically, and output directories that a failed run leaves as they were.
+
+Every write goes to a temporary file in the destination's directory, which
+then replaces the destination with :func:`os.replace`, so a crash never leaves
+a half-written file behind; :func:`staged_outputs` makes a set of files appear
+together.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["atomic_open", "ensure_writable_dir", "first_missing_ancestor", "remove_if_empty",
+           "staged_outputs", "write_png", "write_text"]
+
+
+def first_missing_ancestor(path) -> Path | None:
+    """The outermost directory of ``path`` (itself included) that does not exist yet, or None."""
+    path = Path(path).absolute()
+    missing = None
+    for p in [path, *path.parents]:
+        if p.exists():
+            break
+        missing = p
+    return missing
+
+
+def remove_if_empty(top: Path | None, path) -> None:
+    """Remove ``path`` and its parents up to ``top`` when they are empty (after a failed run)."""
+    if top is None:
+        return
+    path = Path(path).absolute()
+    for p in [path, *path.parents]:
+        with contextlib.suppress(OSError):
+            p.rmdir()
+        if p == top:
+            break
+
+
+@contextlib.contextmanager
+def staged_outputs(outdir):
+    """Yield a hidden staging directory in ``outdir``; on success move its files into ``outdir``.
+
+    All outputs of a run appear together (each move is atomic); on failure the
+    staging directory is removed and ``outdir`` keeps what it had.
+    """
+    import shutil
+
+    outdir = Path(outdir)
+    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=outdir))
+    try:
+        yield stage
+        for f in sorted(stage.iterdir()):
+            os.replace(f, outdir / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def ensure_writable_dir(path) -> Path:
+    """Create a directory if needed and check that files can be created in it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Directory to create (with parents) and probe.
+
+    Returns
+    -------
+    pathlib.Path
+        The directory.
+
+    Raises
+    ------
+    ValueError
+        If the directory cannot be created or written to; the message names
+        the path and the operating system's reason.
+    """
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ValueError(f"cannot write to directory '{path}': {exc.strerror or exc}") from exc
+    return path
+
+
+def _file_mode(path: Path) -> int:
+    """Permissions for ``path``: those of the file it replaces, else 0666 less the umask."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+@contextlib.contextmanager
+def atomic_open(path):
+    """Yield a binary file in ``path``'s directory that replaces ``path`` on success."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            yield f
+        os.chmod(tmp, _file_mode(path))       # mkstemp makes 0600 files
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def write_png(path, image) -> Path:
+    """Write an RGB(A) image as an 8-bit PNG file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    image : (h, w, 3) or (h, w, 4) array-like, uint8 or float
+        Display-ready pixels: uint8, or floats in [0, 1] (already
+        gamma-encoded; see :func:`mi_loop.render.scene.to_srgb`).
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        If the image is not (h, w, 3|4) or a float image has values outside
+        [0, 1] or NaNs.
+    """
+    from matplotlib import image as mpl_image
+
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
+        raise ValueError(f"write_png: expected an (h, w, 3|4) image, got shape {image.shape}")
+    if image.dtype != np.uint8:
+        bad = ~((image >= 0) & (image <= 1))
+        if bad.any():
+            raise ValueError("write_png: float pixels must lie in [0, 1] (no NaN); "
+                             f"got {image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
+        image = np.round(image * 255).astype(np.uint8)
+    path = Path(path)
+    with atomic_open(path) as f:
+        mpl_image.imsave(f, image, format="png")
+    return path
+
+
+def write_text(path, text: str) -> Path:
+    """Write a UTF-8 text file (e.g. JSON), atomically; returns the path."""
+    path = Path(path)
+    with atomic_open(path) as f:
+        f.write(text.encode("utf-8"))
+    return path

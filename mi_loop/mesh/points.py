@@ -1,0 +1,105 @@
+"""Oriented point clouds (NumPy/SciPy): normal estimation and orientation.
+
+Scans and depth cameras give points without normals; IMLS, the coverage term
+and screened Poisson need oriented ones. :func:`estimate_normals` gives them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mi_loop.errors import fail
+from mi_loop.mesh.checks import check_points
+
+__all__ = ["estimate_normals"]
+
+
+def estimate_normals(P, k: int = 16):
+    """Estimate consistently oriented unit normals of a point cloud.
+
+    PCA over the ``k`` nearest neighbours gives unoriented normals; signs are
+    propagated along a minimum spanning tree of the kNN graph with edge cost
+    ``1 - |n_i . n_j|`` (Hoppe et al. 1992), starting in each connected
+    component from its point farthest from the component's centroid (normal
+    turned outward there). Finally each component is flipped if its normals
+    point toward its centroid on average, ``mean((p - c) . n) < 0``.
+
+    Parameters
+    ----------
+    P : (N, 3) float NumPy array
+        Points, ``N >= k + 1``.
+    k : int
+        Neighbours per point (3 to 200; 16 suits clean scans, larger for noise).
+
+    Returns
+    -------
+    N : (N, 3) float64 NumPy array
+        Unit normals.
+
+    Raises
+    ------
+    ValueError
+        Bad shape, non-finite points, too few points, bad ``k``.
+
+    Notes
+    -----
+    Orientation is only as good as the sampling: thin sheets closer than the
+    neighbourhood size, or strongly non-uniform sampling, may flip patches.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> P = rng.normal(size=(500, 3)); P /= np.linalg.norm(P, axis=1, keepdims=True)
+    >>> N = estimate_normals(P)
+    >>> bool(np.mean(np.sum(N * P, axis=1) > 0.99) > 0.99)
+    True
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.spatial import cKDTree
+
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= k <= 200:
+        fail("estimate_normals", "an integer k in [3, 200]", k)
+    P = check_points(P, "estimate_normals")
+    if len(P) < k + 1:
+        fail("estimate_normals", f"at least k + 1 = {k + 1} points", f"{len(P)}")
+    _, nbr = cKDTree(P).query(P, k=k + 1)                # (N, k+1), self first
+    Q = P[nbr] - P[nbr].mean(1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))
+    Nrm = vecs[:, :, 0]                                    # smallest eigenvalue's eigenvector
+    i = np.repeat(np.arange(len(P)), k)
+    j = nbr[:, 1:].ravel()
+    cost = 1.0 - np.abs(np.einsum("ij,ij->i", Nrm[i], Nrm[j])) + 1e-6
+    G = coo_matrix((cost, (i, j)), shape=(len(P),) * 2).tocsr()
+    G = G.maximum(G.T)
+    T = minimum_spanning_tree(G)
+    T = T + T.T
+    n_comp, label = connected_components(T, directed=False)
+    for c in range(n_comp):
+        idx = np.flatnonzero(label == c)
+        centre = P[idx].mean(0)
+        root = idx[np.argmax(np.linalg.norm(P[idx] - centre, axis=1))]
+        if np.dot(Nrm[root], P[root] - centre) < 0:
+            Nrm[root] = -Nrm[root]
+        _, pred = breadth_first_order(T, root, directed=False)
+        Nrm[idx] *= _tree_signs(Nrm, pred, idx, root)[:, None]
+        if np.mean(np.sum((P[idx] - centre) * Nrm[idx], axis=1)) < 0:
+            Nrm[idx] = -Nrm[idx]
+    return Nrm
+
+
+def _tree_signs(Nrm, pred, idx, root):
+    """Sign of every node of a tree so that neighbours agree: product of edge signs to the root.
+
+    Pointer jumping: ``O(N log depth)`` vectorised steps instead of a walk.
+    """
+    anc = np.arange(len(pred))
+    child = idx[idx != root]
+    anc[child] = pred[child]
+    s = np.ones(len(pred))
+    s[child] = np.where(np.einsum("ij,ij->i", Nrm[child], Nrm[anc[child]]) < 0, -1.0, 1.0)
+    while True:
+        if np.all(anc[idx] == root):
+            return s[idx]
+        s = s * s[anc]
+        anc = anc[anc]

@@ -1,0 +1,319 @@
+"""Mitsuba 3 shape plugin ``loop_subdiv``: a Loop limit surface with differentiable control points.
+
+After :func:`register` (called by :func:`mi_loop.set_variant`), scenes can say::
+
+    <shape type="loop_subdiv">
+        <string name="filename" value="blob.ply"/>   <!-- control mesh: PLY, OBJ or OFF -->
+        <integer name="level" value="3"/>            <!-- 4**level triangles per control face -->
+        <string name="creases" value="0 1, 1 2"/>    <!-- optional sharp edges, vertex pairs -->
+        <transform name="to_world"> ... </transform> <!-- optional, applied to the control points -->
+        <bsdf type="diffuse"/>
+    </shape>
+
+The shape is a triangle mesh (a Python subclass of ``mi.Mesh``) whose vertices
+are exact limit points of the control mesh at a uniform tessellation of every
+control face and whose vertex normals are the exact limit normals.
+``mi.traverse`` exposes ``control_points``, a differentiable flat ``mi.Float``
+of length ``3 n`` (xyz interleaved, world space); updating it recomputes the
+mesh through the cached :class:`mi_loop.LimitOperator`, with gradients.
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_creases", "plain_mesh", "register"]
+
+#: Name of the plugin in scene dictionaries and XML files.
+PLUGIN_NAME = "loop_subdiv"
+
+_PAIR = re.compile(r"^\s*(\d+)\s+(\d+)\s*$")
+_CLASSES: dict = {}
+
+
+def parse_creases(text: str) -> np.ndarray | None:
+    """Parse the ``creases`` property: comma- or semicolon-separated vertex pairs.
+
+    Parameters
+    ----------
+    text : str
+        E.g. ``"0 1, 1 2; 2 3"``. Blank means no creases.
+
+    Returns
+    -------
+    (c, 2) int64 NumPy array or None
+        Crease edges as control-vertex pairs, None if ``text`` is blank.
+
+    Raises
+    ------
+    ValueError
+        If an entry is not two non-negative integers.
+
+    Examples
+    --------
+    >>> parse_creases("0 1, 1 2").tolist()
+    [[0, 1], [1, 2]]
+    >>> parse_creases("  ") is None
+    True
+    """
+    entries = [e for e in re.split(r"[,;]", text) if e.strip()]
+    if not entries:
+        return None
+    pairs = []
+    for k, entry in enumerate(entries):
+        match = _PAIR.match(entry)
+        if match is None:
+            raise ValueError(f"loop_subdiv: creases entry {k} is {entry.strip()!r}, "
+                             "expected two vertex indices such as '0 1'")
+        pairs.append((int(match.group(1)), int(match.group(2))))
+    return np.asarray(pairs, dtype=np.int64)
+
+
+# The one place that knows Mitsuba's mesh-buffer names (``mi.traverse`` keys of a mesh).
+_POSITIONS, _NORMALS, _FACES = "vertex_positions", "vertex_normals", "faces"
+
+
+def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Copy a Mitsuba mesh's vertex positions, vertex normals and faces to NumPy.
+
+    Parameters
+    ----------
+    mesh : mi.Mesh
+        Any Mitsuba mesh, e.g. a ``loop_subdiv`` shape.
+
+    Returns
+    -------
+    P : (k, 3) float32 NumPy array
+        Vertex positions.
+    N : (k, 3) float32 NumPy array
+        Vertex normals (zeros if the mesh has none).
+    F : (t, 3) uint32 NumPy array
+        Triangles.
+    """
+    import mitsuba as mi
+
+    params = mi.traverse(mesh)
+    P = np.asarray(params[_POSITIONS], dtype=np.float32).reshape(-1, 3)
+    N = (np.asarray(params[_NORMALS], dtype=np.float32).reshape(-1, 3)
+         if _NORMALS in params else np.zeros_like(P))
+    F = np.asarray(params[_FACES], dtype=np.uint32).reshape(-1, 3)
+    return P, N, F
+
+
+def _write_mesh_buffers(mesh, positions, normals, faces=None) -> None:
+    """Write flat buffers into a Mitsuba mesh through ``mi.traverse``.
+
+    Parameters
+    ----------
+    mesh : mi.Mesh
+        Destination mesh (its vertex and face counts are fixed).
+    positions : mi.Float, shape (3 k,)
+        Vertex positions, xyz interleaved; gradients are kept.
+    normals : mi.Float, shape (3 k,)
+        Unit vertex normals, xyz interleaved.
+    faces : mi.UInt32, shape (3 t,), optional
+        Triangle vertex indices; only needed once.
+    """
+    import mitsuba as mi
+
+    params = mi.traverse(mesh)
+    params[_POSITIONS] = positions
+    params[_NORMALS] = normals
+    if faces is not None:
+        params[_FACES] = faces
+    params.update()
+
+
+def _shape_class(variant: str):
+    """Build (once per variant) the ``mi.Mesh`` subclass behind ``loop_subdiv``."""
+    if variant in _CLASSES:
+        return _CLASSES[variant]
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop import io
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.subdiv.tessellation import tessellate
+    from mi_loop.mesh.topology import validate_mesh
+
+    class LoopSubdivMesh(mi.Mesh):
+        """Loop limit surface of a control mesh, tessellated uniformly.
+
+        Parameters
+        ----------
+        props : mi.Properties
+            ``filename`` (str, control mesh, resolved against the scene's
+            file resolver), ``level`` (int >= 0, default 3), ``creases``
+            (str, see :func:`parse_creases`), ``to_world`` (transform), plus
+            the usual shape children (bsdf, emitter, ...).
+        control_mesh : ((n, 3) float, (m, 3) int) NumPy arrays, optional
+            Control vertices and faces given directly instead of ``filename``.
+        creases : None, (c, 2) int array or (E, sharpness), optional
+            Crease edges given directly instead of the ``creases`` property.
+        """
+
+        def __init__(self, props, control_mesh=None, creases=None):
+            level = props.get("level", 3)
+            if not isinstance(level, int) or level < 0:
+                raise ValueError(f"loop_subdiv: expected an integer level >= 0, got {level!r}")
+            if "creases" in props:
+                creases = parse_creases(props.get("creases"))
+            if control_mesh is None:
+                if "filename" not in props:
+                    raise ValueError("loop_subdiv: missing the 'filename' property (control mesh PLY/OBJ/OFF)")
+                control_mesh = io.read_mesh(str(mi.file_resolver().resolve(props.get("filename"))))
+            V, F = (np.asarray(a) for a in control_mesh)
+            validate_mesh(V, F)
+            if "to_world" in props:
+                T = np.asarray(props.get("to_world").matrix, dtype=np.float64)
+                V = V @ T[:3, :3].T + T[:3, 3]
+            face_ids, uv, F_tess = tessellate(F, level)
+            super().__init__(props.id() or PLUGIN_NAME, len(uv), len(F_tess), props,
+                             has_vertex_normals=True)
+            self._level = level
+            self._n = len(V)
+            self._operator = LimitOperator(F, len(V), face_ids, uv, creases=creases)
+            self._x = mi.Float(V.astype(np.float32).ravel())
+            self._update_geometry(faces=mi.UInt32(np.asarray(F_tess, dtype=np.uint32).ravel()))
+
+        @property
+        def operator(self):
+            """The cached :class:`mi_loop.LimitOperator` of this shape."""
+            return self._operator
+
+        @property
+        def level(self) -> int:
+            """Tessellation level: 4**level triangles per control face."""
+            return self._level
+
+        def _update_geometry(self, faces=None) -> None:
+            if dr.width(self._x) != 3 * self._n:
+                raise ValueError(f"loop_subdiv: control_points must hold 3 * {self._n} values, "
+                                 f"got {dr.width(self._x)}")
+            P, N = self._operator.positions_normals(self._x)
+            _write_mesh_buffers(self, dr.ravel(P), dr.ravel(N), faces)
+
+        def traverse(self, cb):
+            super().traverse(cb)
+            cb.put("control_points", self._x,
+                   mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
+
+        def parameters_changed(self, keys=()):
+            if not keys or "control_points" in keys:
+                self._update_geometry()
+            else:
+                super().parameters_changed(keys)
+
+        def to_string(self):
+            return (f"LoopSubdivMesh[control_points={self._n}, level={self._level}, "
+                    f"vertices={self.vertex_count()}, faces={self.face_count()}]")
+
+    _CLASSES[variant] = LoopSubdivMesh
+    return LoopSubdivMesh
+
+
+def register():
+    """Register the ``loop_subdiv`` shape plugin for the current Mitsuba variant.
+
+    Returns
+    -------
+    type
+        The ``mi.Mesh`` subclass implementing the plugin (also usable through
+        :func:`create`).
+
+    Raises
+    ------
+    RuntimeError
+        If no Mitsuba variant is set or the variant is not a JIT AD variant
+        (``llvm_ad_*`` or ``cuda_ad_*``).
+    """
+    import mitsuba as mi
+
+    cls = _current_class("register")
+    mi.register_shape(PLUGIN_NAME, lambda props: cls(props))
+    return cls
+
+
+def _current_class(caller: str):
+    """Return the plugin class for the current variant, checking that it is a JIT AD one."""
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant is None or not variant.startswith(("llvm_ad_", "cuda_ad_")):
+        raise RuntimeError(f"{caller}: needs a Mitsuba llvm_ad_* or cuda_ad_* variant, current is "
+                           f"{variant!r}; call mi_loop.set_variant() first")
+    return _shape_class(variant)
+
+
+def create(V, F, level: int = 3, creases=None, bsdf=None):
+    """Build a ``loop_subdiv`` shape from control-mesh arrays (no file needed).
+
+    Parameters
+    ----------
+    V : (n, 3) float NumPy array
+        Control points.
+    F : (m, 3) int NumPy array
+        Control triangles.
+    level : int, optional
+        Tessellation level (4**level triangles per control face).
+    creases : None, (c, 2) int array or (E, sharpness), optional
+        Sharp edges, as accepted by :class:`mi_loop.LimitOperator`.
+    bsdf : mi.BSDF, optional
+        Surface material (Mitsuba's default diffuse if None).
+
+    Returns
+    -------
+    mi.Mesh
+        The shape; put it in a scene dictionary as a value.
+
+    Raises
+    ------
+    RuntimeError
+        If no suitable Mitsuba variant is set.
+    ValueError
+        If the control mesh is invalid.
+    """
+    import mitsuba as mi
+
+    cls = _current_class("create")
+    props = mi.Properties(PLUGIN_NAME)
+    props["level"] = int(level)
+    if bsdf is not None:
+        props["bsdf"] = bsdf
+    return cls(props, control_mesh=(V, F), creases=creases)
+
+
+def plain_mesh(V, F, normals=None, bsdf=None):
+    """Build an ordinary Mitsuba triangle mesh from arrays (e.g. a target to compare with).
+
+    Parameters
+    ----------
+    V : (k, 3) float NumPy array
+        Vertex positions.
+    F : (t, 3) int NumPy array
+        Triangles.
+    normals : (k, 3) float NumPy array, optional
+        Vertex normals (flat shading without them).
+    bsdf : mi.BSDF, optional
+        Surface material.
+
+    Returns
+    -------
+    mi.Mesh
+    """
+    import mitsuba as mi
+
+    V = np.asarray(V, dtype=np.float32)
+    F = np.asarray(F, dtype=np.uint32)
+    props = mi.Properties()
+    if bsdf is not None:
+        props["bsdf"] = bsdf
+    mesh = mi.Mesh("plain", len(V), len(F), props, has_vertex_normals=normals is not None)
+    params = mi.traverse(mesh)
+    params[_POSITIONS] = mi.Float(V.ravel())
+    params[_FACES] = mi.UInt32(F.ravel())
+    if normals is not None:
+        params[_NORMALS] = mi.Float(np.asarray(normals, dtype=np.float32).ravel())
+    params.update()
+    return mesh

@@ -1,0 +1,166 @@
+"""The Dr.Jit LimitOperator against the SciPy matrices, and its gradients."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_loop
+from meshes import bipyramid, creased_cube, open_cylinder
+
+
+def _samples(F, k, seed=0):
+    rng = np.random.default_rng(seed)
+    uv = rng.random((k, 2))
+    flip = uv.sum(1) > 1
+    uv[flip] = 1 - uv[flip]
+    # include control-vertex corners (irregular vertices) and edge points
+    uv[:3] = [[0, 0], [1, 0], [0.5, 0.5]]
+    return rng.integers(0, len(F), k), uv
+
+
+def _np(p):
+    return np.array(p, dtype=np.float64).T
+
+
+@pytest.mark.parametrize("mesh", [bipyramid(7), creased_cube(), open_cylinder()], ids=lambda m: m.name)
+def test_operator_matches_scipy_forward_and_adjoint(mesh):
+    fid, uv = _samples(mesh.F, 400)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv, creases=mesh.creases)
+    x = mi.Float(mesh.V.ravel().astype(np.float32))
+    dr.enable_grad(x)
+    P, du, dv = op.evaluate(x)
+    scale = np.abs(mesh.V).max()
+    for got, d in ((P, None), (du, "u"), (dv, "v")):
+        want = op.matrix(d) @ mesh.V
+        np.testing.assert_allclose(_np(got), want, atol=2e-6 * scale * max(1, np.abs(want).max()))
+    # adjoint identity <W x, y> = <x, W^T y> through reverse-mode AD
+    y = np.random.default_rng(1).standard_normal((len(fid), 3))
+    dr.backward(dr.sum(dr.sum(P * mi.Point3f(y.T.astype(np.float32)))))
+    g = np.array(dr.grad(x)).reshape(-1, 3)
+    np.testing.assert_allclose(g, op.matrix().T @ y, rtol=1e-4, atol=1e-4 * np.abs(g).max())
+    # forward mode: directional derivative equals W @ direction
+    x2 = mi.Float(mesh.V.ravel().astype(np.float32))
+    dr.enable_grad(x2)
+    d = np.random.default_rng(2).standard_normal(mesh.V.shape)
+    dr.set_grad(x2, mi.Float(d.ravel().astype(np.float32)))
+    P2 = op.positions(x2)
+    np.testing.assert_allclose(_np(dr.forward_to(P2)), op.matrix() @ d, atol=1e-4 * np.abs(d).max() * 4)
+
+
+def test_tensor_input_equals_flat_input():
+    mesh = bipyramid(5)
+    fid, uv = _samples(mesh.F, 50)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv)
+    a = _np(op.positions(mi.TensorXf(mesh.V.astype(np.float32))))
+    b = _np(op.positions(mi.Float(mesh.V.ravel().astype(np.float32))))
+    np.testing.assert_array_equal(a, b)
+
+
+def test_normal_loss_gradient_matches_central_differences():
+    """A nonlinear loss through positions and normals: AD vs central differences.
+
+    Dr.Jit runs in float32 here; with step 1e-3 on O(1) coordinates the
+    truncation error is O(1e-6) and the rounding error O(1e-7 / 1e-3) = 1e-4
+    relative, so a 2e-3 relative tolerance on a directional derivative is tight
+    enough to catch a wrong term (a missing derivative row changes it by O(1)).
+    """
+    mesh = bipyramid(4)
+    fid, uv = _samples(mesh.F, 200, seed=3)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv)
+    target = np.random.default_rng(4).standard_normal((len(fid), 3)).astype(np.float32)
+
+    def loss(x):
+        P, du, dv = op.evaluate(x)
+        N = dr.normalize(dr.cross(du, dv))
+        t = mi.Vector3f(target.T)
+        return dr.sum(dr.sum(dr.square(P - t))) + 10.0 * dr.sum(dr.dot(N, t))
+
+    x = mi.Float(mesh.V.ravel().astype(np.float32))
+    dr.enable_grad(x)
+    L = loss(x)
+    dr.backward(L)
+    g = np.array(dr.grad(x), dtype=np.float64)
+    direction = np.random.default_rng(5).standard_normal(g.shape)
+    h = 1e-3
+    plus = loss(mi.Float((mesh.V.ravel() + h * direction).astype(np.float32)))
+    minus = loss(mi.Float((mesh.V.ravel() - h * direction).astype(np.float32)))
+    fd = (float(plus[0]) - float(minus[0])) / (2 * h)
+    np.testing.assert_allclose(g @ direction, fd, rtol=2e-3)
+
+
+def test_repeated_calls_reuse_kernels():
+    """A second evaluation with new control points compiles no new kernel."""
+    mesh = bipyramid(6)
+    fid, uv = _samples(mesh.F, 100)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv)
+    for i in range(2):
+        P = op.positions(mi.Float((mesh.V.ravel() * (1 + i)).astype(np.float32)))
+        dr.eval(P)
+    dr.kernel_history_clear() if hasattr(dr, "kernel_history_clear") else dr.kernel_history()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        P = op.positions(mi.Float((mesh.V.ravel() * 3).astype(np.float32)))
+        dr.eval(P)
+        hist = dr.kernel_history()
+    launched = [k for k in hist if k.get("type") == dr.KernelType.JIT]
+    assert launched, "no kernel was launched at all"
+    assert all(k.get("cache_hit") for k in launched), [k.get("cache_hit") for k in launched]
+
+
+def test_gradient_of_two_branches_on_the_same_control_points():
+    """Limit-operator energy + ARAP energy of the same x: the gradient is the sum of both.
+
+    (Guards against Dr.Jit's ``dr.unravel`` dropping one branch of the reverse pass.)
+    """
+    from mi_loop.energies.arap import ARAP
+
+    mesh = bipyramid(6)
+    fid, uv = _samples(mesh.F, 80)
+    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv, derivatives=False)
+    arap = ARAP(mesh.V * 0.9, mesh.F)
+    R = arap.rotations(mesh.V)
+
+    def grad(parts):
+        x = mi.Float(mesh.V.ravel().astype(np.float32))
+        dr.enable_grad(x)
+        E = mi.Float(0.0)
+        for part in parts:   # ARAP first: the order that lost the other branch
+            E = E + (arap.energy(x, R) if part == "arap" else dr.sum(dr.squared_norm(op.positions(x))))
+        dr.backward(E)
+        return np.array(dr.grad(x), dtype=np.float64)
+
+    g_arap, g_op, g_both = grad(["arap"]), grad(["op"]), grad(["arap", "op"])
+    np.testing.assert_allclose(g_both, g_arap + g_op, rtol=1e-4, atol=1e-4 * np.abs(g_op).max())
+
+
+def test_two_gather_chains_from_one_variable_are_summed():
+    """The Dr.Jit 1.5.0 behaviour that ``unravel_points`` works around, pinned down.
+
+    Two independent gather -> gather chains from the same AD variable: the sum
+    of their gradients is wrong in the z component unless the first gather is
+    shared. If a Dr.Jit upgrade fixes this, the first assertion fails and the
+    workaround can go.
+    """
+    rng = np.random.default_rng(0)
+    n = 50
+    V = rng.standard_normal((n, 3)).astype(np.float32)
+    idx = [mi.UInt32(rng.integers(0, n, k).astype(np.uint32)) for k in (200, 300)]
+
+    def grad(branches, share):
+        x = mi.Float(V.ravel())
+        dr.enable_grad(x)
+        shared = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, n))
+        E = mi.Float(0.0)
+        for b in branches:
+            src = shared if share else dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, n))
+            E = E + (b + 1) * dr.sum(dr.squared_norm(dr.gather(mi.Point3f, src, idx[b])))
+        dr.backward(E)
+        return np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+
+    for share in (False, True):
+        err = np.abs(grad([0, 1], share) - grad([0], share) - grad([1], share)).max(0)
+        if share:
+            assert err.max() < 1e-3, err
+        else:
+            assert err[2] > 1.0 and err[:2].max() < 1e-3, err

@@ -1,0 +1,202 @@
+"""Reading oriented points (mi_loop.io.points): formats, mesh sampling, errors, normal estimation."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mi_loop.io.points import load_oriented_points
+from mi_loop.mesh.points import estimate_normals
+
+from helpers import DATA
+BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
+
+
+def _sphere(n, seed=0):
+    P = np.random.default_rng(seed).normal(size=(n, 3))
+    return P / np.linalg.norm(P, axis=1, keepdims=True)
+
+
+def _write_ply_points(path, P, N=None, binary=False):
+    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if N is not None else [])
+    A = P if N is None else np.hstack([P, N])
+    fmt = "binary_little_endian" if binary else "ascii"
+    head = (f"ply\nformat {fmt} 1.0\nelement vertex {len(A)}\n"
+            + "".join(f"property float {p}\n" for p in props) + "end_header\n")
+    with open(path, "wb") as fh:
+        fh.write(head.encode())
+        if binary:
+            fh.write(A.astype("<f4").tobytes())
+        else:
+            fh.write("".join(" ".join(f"{x:.9g}" for x in row) + "\n" for row in A).encode())
+
+
+def _cube():
+    V = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    F = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return V, F
+
+
+def _check_cube_samples(P, N):
+    """Samples lie on the unit cube's faces; normals are the outward axis directions there."""
+    on = np.isclose(P, 0, atol=1e-6) | np.isclose(P, 1, atol=1e-6)
+    assert on.any(1).all() and (P > -1e-9).all() and (P < 1 + 1e-9).all()
+    np.testing.assert_allclose(np.abs(N).max(1), 1.0, atol=1e-9)
+    axis = np.argmax(np.abs(N), 1)
+    coord = P[np.arange(len(P)), axis]
+    expected = np.where(N[np.arange(len(P)), axis] > 0, 1.0, 0.0)
+    np.testing.assert_allclose(coord, expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_ply_points_with_and_without_normals(tmp_path, binary):
+    P = _sphere(200)
+    _write_ply_points(tmp_path / "n.ply", P, 2 * P, binary)   # normals get unit length
+    Q, N, info = load_oriented_points(tmp_path / "n.ply")
+    np.testing.assert_allclose(Q, P, atol=1e-6)
+    np.testing.assert_allclose(N, P, atol=1e-6)
+    assert info["kind"] == "points" and info["has_normals"] and info["n_points"] == 200
+    _write_ply_points(tmp_path / "p.ply", P, None, binary)
+    Q, N, info = load_oriented_points(tmp_path / "p.ply")
+    assert N is None and not info["has_normals"] and Q.shape == (200, 3)
+
+
+def test_text_formats_with_comments_and_headers(tmp_path):
+    P = _sphere(50)
+    rows6 = "\n".join(" ".join(f"{x:.12g}" for x in r) for r in np.hstack([P, P]))
+    rows3 = "\n".join(",".join(f"{x:.12g}" for x in r) for r in P)
+    (tmp_path / "a.xyz").write_text("# comment\n// another\nx y z nx ny nz\n" + rows6 + "\n\n")
+    (tmp_path / "b.pts").write_text("50\n" + rows3 + "\n")
+    (tmp_path / "c.txt").write_text(rows3)
+    Q, N, info = load_oriented_points(tmp_path / "a.xyz")
+    np.testing.assert_allclose(Q, P, atol=1e-11)
+    np.testing.assert_allclose(N, P, atol=1e-11)
+    for name in ("b.pts", "c.txt"):
+        Q, N, info = load_oriented_points(tmp_path / name)
+        np.testing.assert_allclose(Q, P, atol=1e-11)
+        assert N is None and info["format"] == name[-3:]
+
+
+def test_npz_and_point_subset(tmp_path):
+    P = _sphere(300)
+    np.savez(tmp_path / "a.npz", points=P, normals=-P)
+    Q, N, info = load_oriented_points(tmp_path / "a.npz")
+    np.testing.assert_allclose(N, -P)
+    Q, N, info = load_oriented_points(tmp_path / "a.npz", n_samples=100, seed=3)
+    Q2, _, _ = load_oriented_points(tmp_path / "a.npz", n_samples=100, seed=3)
+    assert len(Q) == 100 and info["subsampled"] and len(np.unique(Q, axis=0)) == 100
+    np.testing.assert_array_equal(Q, Q2)
+    np.testing.assert_allclose(np.sum(N * Q, 1), -1.0, atol=1e-12)   # normals stay paired
+    np.savez(tmp_path / "b.npz", points=P)
+    assert load_oriented_points(tmp_path / "b.npz")[1] is None
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".off", ".ply"])
+def test_mesh_files_are_sampled_with_face_normals(tmp_path, suffix):
+    import trimesh
+
+    V, F = _cube()
+    path = tmp_path / f"cube{suffix}"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    P, N, info = load_oriented_points(path, n_samples=5000)
+    assert info["kind"] == "mesh" and info["n_faces"] == 12 and P.shape == N.shape == (5000, 3)
+    _check_cube_samples(P, N)
+    # Area weighting: every face of the cube gets about 1/6 of the samples.
+    counts = np.bincount(np.argmax(np.abs(N), 1) * 2 + (N.max(1) > 0.5), minlength=6)
+    np.testing.assert_allclose(counts / 5000, 1 / 6, atol=0.03)
+    P_default, _, _ = load_oriented_points(path)
+    assert len(P_default) == 100_000
+    np.testing.assert_array_equal(load_oriented_points(path, n_samples=50, seed=1)[0],
+                                  load_oriented_points(path, n_samples=50, seed=1)[0])
+
+
+def test_real_bunny_scan():
+    P, N, info = load_oriented_points(BUNNY_SCAN)
+    assert P.shape == N.shape == (118_245, 3)
+    assert info == {"format": "ply", "seed": 0, "subsampled": False, "kind": "points",
+                    "n_file": 118_245, "n_points": 118_245, "has_normals": True}
+    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-6)
+    # Scan normals point outward: away from the centroid on average.
+    assert np.mean(np.sum((P - P.mean(0)) * N, 1) > 0) > 0.7
+
+
+def test_errors(tmp_path):
+    with pytest.raises(ValueError, match="no such file"):
+        load_oriented_points(tmp_path / "missing.ply")
+    (tmp_path / "a.stl").write_text("solid")
+    with pytest.raises(ValueError, match="unknown suffix '.stl'"):
+        load_oriented_points(tmp_path / "a.stl")
+    (tmp_path / "empty.xyz").write_text("# nothing\n")
+    with pytest.raises(ValueError, match="holds no points"):
+        load_oriented_points(tmp_path / "empty.xyz")
+    (tmp_path / "bad.ply").write_bytes(b"\x00\x01garbage")
+    with pytest.raises(ValueError, match="cannot parse"):
+        load_oriented_points(tmp_path / "bad.ply")
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="cannot read NPZ"):
+        load_oriented_points(tmp_path / "bad.npz")
+    (tmp_path / "cols.xyz").write_text("1 2 3 4\n5 6 7 8\n")
+    with pytest.raises(ValueError, match="got 4"):
+        load_oriented_points(tmp_path / "cols.xyz")
+    (tmp_path / "ragged.xyz").write_text("1 2 3\n5 6 7 8 9 10\n")
+    with pytest.raises(ValueError, match="fixed column count"):
+        load_oriented_points(tmp_path / "ragged.xyz")
+    (tmp_path / "nan.xyz").write_text("0 0 0\n1 nan 0\n")
+    with pytest.raises(ValueError, match="point 1 has a non-finite"):
+        load_oriented_points(tmp_path / "nan.xyz")
+    P = _sphere(10)
+    N = P.copy()
+    N[7] = 0
+    np.savez(tmp_path / "zero.npz", points=P, normals=N)
+    with pytest.raises(ValueError, match="normal 7 is zero-length"):
+        load_oriented_points(tmp_path / "zero.npz")
+    np.savez(tmp_path / "count.npz", points=P, normals=P[:9])
+    with pytest.raises(ValueError, match="10 points but 9 normals"):
+        load_oriented_points(tmp_path / "count.npz")
+    np.savez(tmp_path / "nopoints.npz", pts=P)
+    with pytest.raises(ValueError, match="named 'points'"):
+        load_oriented_points(tmp_path / "nopoints.npz")
+    with pytest.raises(ValueError, match="n_samples must be a positive integer"):
+        load_oriented_points(tmp_path / "count.npz", n_samples=0)
+
+
+def test_ply_with_partial_normals_is_rejected(tmp_path):
+    head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n" \
+           "property float z\nproperty float nx\nend_header\n0 0 0 1\n1 0 0 1\n"
+    (tmp_path / "p.ply").write_text(head)
+    with pytest.raises(ValueError, match="only some of nx, ny, nz"):
+        load_oriented_points(tmp_path / "p.ply")
+
+
+@pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (3.0, -2.0, 1.0)])
+def test_estimate_normals_on_sphere(centre):
+    U = _sphere(4000, seed=1)
+    P = U * 0.5 + centre
+    N = estimate_normals(P, k=16)
+    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-12)
+    dots = np.sum(N * U, 1)
+    assert np.mean(np.abs(dots) > 0.99) > 0.99
+    assert np.mean(dots > 0.99) > 0.99          # oriented outward, consistently
+
+
+def test_estimate_normals_two_components_each_outward():
+    U = _sphere(3000, seed=2)
+    P = np.vstack([U, U + [5.0, 0, 0]])
+    N = estimate_normals(P)
+    assert np.mean(np.sum(N * np.vstack([U, U]), 1) > 0.99) > 0.99
+
+
+def test_estimate_normals_errors():
+    P = _sphere(100)
+    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected an integer k in \[3, 200\], got 2"):
+        estimate_normals(P, k=2)
+    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected at least k \+ 1 = 17 points, got 10"):
+        estimate_normals(P[:10])
+    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected points of shape \(k, 3\) with k > 0, got shape \(100, 2\)"):
+        estimate_normals(P[:, :2])
+    Q = P.copy()
+    Q[5, 2] = np.inf
+    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected finite points, got row 5 = \[.*inf\]"):
+        estimate_normals(Q)
