@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mi_loop.subdiv.limit import _check_samples, build_hierarchy, level_rows, padded_to_csr
+from mi_loop.subdiv.limit import check_samples, build_hierarchy, level_rows, padded_to_csr
 
 DERIVATIVES = (None, "u", "v")
 
@@ -121,7 +121,7 @@ class LimitOperator:
 
     def __init__(self, F, n_vertices, face_ids, uv, creases=None, derivatives: bool = True):
         h = build_hierarchy(F, n_vertices, creases, "LimitOperator")
-        self.face_ids, self.uv = _check_samples(face_ids, uv, len(h.levels[0].F), "LimitOperator")
+        self.face_ids, self.uv = check_samples(face_ids, uv, len(h.levels[0].F), "LimitOperator")
         self.n = int(n_vertices)
         self.n_samples = len(self.face_ids)
         names = DERIVATIVES if derivatives else (None,)

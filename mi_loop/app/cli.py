@@ -183,12 +183,12 @@ def _demo(args, start) -> None:
 
 
 def _render_file(args, start) -> None:
-    from mi_loop.render.plugin import parse_creases
+    from mi_loop.render.plugin import parse_crease_text
 
     if args.output.suffix.lower() != ".png":
         raise ValueError(f"render: output must be a .png file, got '{args.output}'")
     io.ensure_writable_dir(args.output.parent)
-    creases = parse_creases(args.creases)
+    creases = parse_crease_text(args.creases)
     V, F = io.read_mesh(args.control)
     _say(f"control mesh '{args.control}': {len(V)} vertices, {len(F)} faces", start)
     image, _ = _render(V, F, args, creases, start)

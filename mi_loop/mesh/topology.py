@@ -127,7 +127,7 @@ class Topology:
         return kind
 
 
-def parse_creases(creases, F: np.ndarray, n: int, func: str):
+def check_creases(creases, F: np.ndarray, n: int, func: str):
     """Normalise the ``creases`` argument to ``(E (c,2) int64, s (c,) float64)`` or None.
 
     Accepted forms: None; an int array ``(c, 2)`` of vertex pairs (infinitely

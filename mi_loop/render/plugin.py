@@ -23,7 +23,7 @@ import re
 
 import numpy as np
 
-__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_creases", "plain_mesh", "register"]
+__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_crease_text", "plain_mesh", "register"]
 
 #: Name of the plugin in scene dictionaries and XML files.
 PLUGIN_NAME = "loop_subdiv"
@@ -32,7 +32,7 @@ _PAIR = re.compile(r"^\s*(\d+)\s+(\d+)\s*$")
 _CLASSES: dict = {}
 
 
-def parse_creases(text: str) -> np.ndarray | None:
+def parse_crease_text(text: str) -> np.ndarray | None:
     """Parse the ``creases`` property: comma- or semicolon-separated vertex pairs.
 
     Parameters
@@ -52,9 +52,9 @@ def parse_creases(text: str) -> np.ndarray | None:
 
     Examples
     --------
-    >>> parse_creases("0 1, 1 2").tolist()
+    >>> parse_crease_text("0 1, 1 2").tolist()
     [[0, 1], [1, 2]]
-    >>> parse_creases("  ") is None
+    >>> parse_crease_text("  ") is None
     True
     """
     entries = [e for e in re.split(r"[,;]", text) if e.strip()]
@@ -145,7 +145,7 @@ def _shape_class(variant: str):
         props : mi.Properties
             ``filename`` (str, control mesh, resolved against the scene's
             file resolver), ``level`` (int >= 0, default 3), ``creases``
-            (str, see :func:`parse_creases`), ``to_world`` (transform), plus
+            (str, see :func:`parse_crease_text`), ``to_world`` (transform), plus
             the usual shape children (bsdf, emitter, ...).
         control_mesh : ((n, 3) float, (m, 3) int) NumPy arrays, optional
             Control vertices and faces given directly instead of ``filename``.
@@ -158,7 +158,7 @@ def _shape_class(variant: str):
             if not isinstance(level, int) or level < 0:
                 raise ValueError(f"loop_subdiv: expected an integer level >= 0, got {level!r}")
             if "creases" in props:
-                creases = parse_creases(props.get("creases"))
+                creases = parse_crease_text(props.get("creases"))
             if control_mesh is None:
                 if "filename" not in props:
                     raise ValueError("loop_subdiv: missing the 'filename' property (control mesh PLY/OBJ/OFF)")

@@ -18,7 +18,7 @@ from mi_loop.subdiv.boxspline import box_basis
 from mi_loop.subdiv.irregular import MAX_DEPTH, build_local
 from mi_loop.subdiv.patches import corner_regular, irregular_points, phantom_matrices, stam_points
 from mi_loop.subdiv.subdivision import subdivide_topology
-from mi_loop.mesh.topology import Topology, parse_creases, validate_faces
+from mi_loop.mesh.topology import Topology, check_creases, validate_faces
 
 
 def descend(uv: np.ndarray):
@@ -105,7 +105,7 @@ class Hierarchy:
 def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarchy:
     """Validate and refine the control mesh (see :class:`Hierarchy`)."""
     F = validate_faces(F, n_vertices, func)
-    cr = parse_creases(creases, F, int(n_vertices), func)
+    cr = check_creases(creases, F, int(n_vertices), func)
     topo = Topology.build(F, int(n_vertices), cr)
     finite = topo.sharpness[np.isfinite(topo.sharpness)]
     n_levels = max(1, int(finite.max()) if len(finite) else 1)
@@ -230,7 +230,31 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
     return out
 
 
-def _check_samples(face_ids, uv, m, func):
+def check_samples(face_ids, uv, m, func):
+    """Check limit-sample parameters; return int64 face ids and ``uv`` snapped into the triangle.
+
+    Parameters
+    ----------
+    face_ids : (k,) int array_like
+        Control face of every sample, in ``[0, m)``.
+    uv : (k, 2) float array_like
+        Parameters with ``u >= 0``, ``v >= 0``, ``u + v <= 1`` (1e-12 slack,
+        removed here).
+    m : int
+        Number of control faces.
+    func : str
+        Name of the calling public function, for the message.
+
+    Returns
+    -------
+    face_ids : (k,) int64 numpy array
+    uv : (k, 2) float64 numpy array
+
+    Raises
+    ------
+    ValueError
+        Bad shapes or dtype, a face id out of range, ``uv`` outside the triangle.
+    """
     face_ids = np.asarray(face_ids)
     uv = np.asarray(uv, dtype=np.float64)
     if face_ids.ndim != 1 or not np.issubdtype(face_ids.dtype, np.integer):
@@ -313,6 +337,6 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     if derivative not in (None, "u", "v"):
         raise ValueError(f"limit_matrix(): derivative must be None, 'u' or 'v', got {derivative!r}")
     h = build_hierarchy(F, n_vertices, creases)
-    face_ids, uv = _check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
+    face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))
     return (padded_to_csr(idx, W, h.top.n) @ h.composed()).tocsr()

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mi_loop.mesh.topology import Topology, parse_creases, validate_faces
+from mi_loop.mesh.topology import Topology, check_creases, validate_faces
 
 
 def loop_beta(k):
@@ -130,6 +130,6 @@ def subdivision_matrix(F, n_vertices: int, creases=None):
     True
     """
     F = validate_faces(F, n_vertices, "subdivision_matrix")
-    cr = parse_creases(creases, F, int(n_vertices), "subdivision_matrix")
+    cr = check_creases(creases, F, int(n_vertices), "subdivision_matrix")
     S, fine = subdivide_topology(Topology.build(F, int(n_vertices), cr))
     return S, fine.F

@@ -160,10 +160,10 @@ def test_bad_properties_are_reported(blob_file, props, message):
 
 
 def test_parse_creases():
-    np.testing.assert_array_equal(plugin.parse_creases("0 1, 1 2;2 3 "), [[0, 1], [1, 2], [2, 3]])
-    assert plugin.parse_creases("") is None
+    np.testing.assert_array_equal(plugin.parse_crease_text("0 1, 1 2;2 3 "), [[0, 1], [1, 2], [2, 3]])
+    assert plugin.parse_crease_text("") is None
     with pytest.raises(ValueError, match="creases entry 0 is '0 x'"):
-        plugin.parse_creases("0 x")
+        plugin.parse_crease_text("0 x")
 
 
 def test_set_variant_rejects_non_ad_variant():
