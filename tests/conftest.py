@@ -17,6 +17,26 @@ def variant() -> str:
     return "llvm_ad_rgb"
 
 
+def pytest_generate_tests(metafunc):
+    """Tests taking ``jit_variant`` run once per variant this machine can run (as Mitsuba's conftest).
+
+    ``llvm_ad_rgb`` everywhere, ``cuda_ad_rgb`` where Dr.Jit finds a GPU: on a
+    machine without one the CUDA case is not generated at all (not skipped).
+    """
+    if "jit_variant" in metafunc.fixturenames:
+        from mi_loop.render.variant import usable_variants
+
+        metafunc.parametrize("jit_variant", usable_variants(), indirect=True)
+
+
+@pytest.fixture
+def jit_variant(request):
+    """Switch to the variant under test for one test, then back to ``llvm_ad_rgb``."""
+    mi_loop.set_variant(request.param)
+    yield request.param
+    mi_loop.set_variant("llvm_ad_rgb")
+
+
 @pytest.fixture(scope="session")
 def repo() -> Path:
     """Root of the repository."""

@@ -7,3 +7,5 @@
 Nothing here imports Mitsuba or Dr.Jit at import time; a variant must be set
 (:func:`mi_loop.set_variant`) before the functions are called.
 """
+
+__all__: list = []

@@ -4,15 +4,19 @@ Built once per control mesh and sample set; index and weight arrays live on
 the device and are reused, so repeated calls launch the same kernels. The
 operator is kept factored, ``W = W_L S_L``: ``S_L`` (subdivision to the level
 where every face has one irregular corner at most) and ``W_L`` (padded rows of
-at most ``N + 6`` weights). Both are linear maps written with ``dr.gather``,
-so forward- and reverse-mode AD come from Dr.Jit.
+at most ``N + 6`` weights). Both are padded gathers plus block sums whose
+reverse pass is the transposed gather (:mod:`mi_loop.ad.sparse`): forward- and
+reverse-mode AD, no atomics, bit-reproducible gradients.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 
-from mi_loop.subdiv.limit import check_samples, build_hierarchy, level_rows, padded_to_csr
+from mi_loop.ad.control import ControlPoints
+from mi_loop.subdiv.limit import build_hierarchy, check_samples, level_rows, padded_to_csr
+
+__all__ = ["DERIVATIVES", "LimitOperator"]
 
 DERIVATIVES = (None, "u", "v")
 
@@ -29,64 +33,29 @@ def _csr_to_padded(M: sp.csr_matrix):
     return idx, W
 
 
-_UNRAVELLED: list = [None, None, None]  # [(index, index_ad), handle, Point3f]: last variable
-
-
-def unravel_points(x):
-    """``mi.Point3f (n)`` from a flat ``mi.Float (3n)`` (xyz interleaved), differentiably.
-
-    Every consumer of the same variable (limit operators, ARAP, the
-    ``loop_subdiv`` plugin) receives the same unravelled array: in Dr.Jit
-    1.5.0, when one AD variable is gathered into two separate intermediate
-    arrays that are gathered again, the reverse pass mis-accumulates the third
-    component (reproduced in ``tests/test_operator.py``). Sharing one
-    intermediate avoids it. The cached variable is held, so its index cannot be
-    reused by another array while cached (a separate handle is held: the
-    caller's Python object may later be assigned new contents in place).
-    """
-    import drjit as dr
-    import mitsuba as mi
-
-    key = (x.index, x.index_ad)
-    if _UNRAVELLED[0] == key:
-        return _UNRAVELLED[2]
-    points = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, dr.width(x) // 3))
-    _UNRAVELLED[:] = [key, type(x)(x), points]
-    return points
-
-
-def forget_unravelled() -> None:
-    """Drop the cached unravelled array (before building a new graph from the same variable)."""
-    _UNRAVELLED[:] = [None, None, None]
-
-
 class _Padded:
     """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``.
 
-    One gather of all ``rows * width`` entries, then a block sum over each row.
+    One gather of all ``rows * width`` entries (an :class:`~mi_loop.ad.sparse.IndexMap`,
+    whose reverse pass is the transposed gather), then a block sum over each
+    row: no atomics in either direction, so gradients are bit-reproducible.
     """
 
-    def __init__(self, idx: np.ndarray, W: np.ndarray):
-        import mitsuba as mi
+    def __init__(self, idx: np.ndarray, W: np.ndarray, n_cols: int):
+        from mi_loop.ad.sparse import IndexMap
+        from mi_loop.ad.upload import upload_float
 
         self.shape = idx.shape
-        self.idx = mi.UInt32(np.ascontiguousarray(idx, dtype=np.uint32).ravel())
-        self.w = mi.Float(np.ascontiguousarray(W, dtype=np.float32).ravel())
+        self.gather = IndexMap(np.ascontiguousarray(idx, dtype=np.int64).ravel(), n_cols)
+        self.w = upload_float(W)
 
-    def apply(self, x, expand: bool = False):
-        """``x``: ``mi.Point3f`` or ``mi.Vector3f``; returns the same type, length ``rows``.
-
-        ``expand``: the reverse pass accumulates into per-thread copies of ``x``
-        (``dr.ReduceMode.Expand``) instead of atomics; for a small ``x`` that
-        only this operator gathers from (Dr.Jit forbids mixing reduction modes
-        on one target).
-        """
+    def apply(self, x):
+        """``x``: ``mi.Point3f`` or ``mi.Vector3f`` of width ``n_cols``; returns the same type, width ``rows``."""
         import drjit as dr
 
         cls = type(x)
-        mode = dr.ReduceMode.Expand if expand else dr.ReduceMode.Auto
-        terms = self.w * dr.gather(cls, x, self.idx, mode=mode)
-        return cls(*(dr.block_sum(terms[c], self.shape[1]) for c in range(3)))
+        terms = self.w * self.gather(x)
+        return cls(*(dr.block_sum(terms[c], self.shape[1], mode="symbolic") for c in range(3)))
 
 
 class LimitOperator:
@@ -139,37 +108,23 @@ class LimitOperator:
     # -- Dr.Jit ---------------------------------------------------------------
     def _dev(self):
         if self._device is None:
-            self._device = {"S": _Padded(*_csr_to_padded(self._S))}
+            self._device = {"S": _Padded(*_csr_to_padded(self._S), self.n)}
             for d, (idx, W) in self._rows.items():
-                self._device[d] = _Padded(idx, W)
+                self._device[d] = _Padded(idx, W, self._n_level)
         return self._device
 
     def _points(self, x):
-        import drjit as dr
-        import mitsuba as mi
-
-        if isinstance(x, np.ndarray):
-            x = mi.Float(np.asarray(x, dtype=np.float32).ravel())
-        if isinstance(x, mi.TensorXf):
-            if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] != self.n:
-                raise ValueError(f"LimitOperator: expected a ({self.n}, 3) tensor of control "
-                                 f"points, got shape {tuple(x.shape)}")
-            x = x.array
-        if not isinstance(x, mi.Float):
-            raise TypeError(f"LimitOperator: control points must be mi.Float (3n), mi.TensorXf "
-                            f"(n, 3) or a NumPy array, got {type(x).__name__}")
-        if dr.width(x) != 3 * self.n:
-            raise ValueError(f"LimitOperator: expected {3 * self.n} control coordinates "
-                             f"({self.n} points, xyz interleaved), got {dr.width(x)}")
-        return unravel_points(x)
+        return ControlPoints.of(x, self.n, "LimitOperator").points
 
     def evaluate(self, x):
         """Limit points and parametric derivatives.
 
         Parameters
         ----------
-        x : mi.Float (3n, xyz interleaved), mi.TensorXf (n, 3) or (n, 3) numpy array
-            Control points, possibly with gradients enabled.
+        x : ControlPoints, mi.Float (3n, xyz interleaved), mi.TensorXf (n, 3) or (n, 3) numpy array
+            Control points, possibly with gradients enabled. Pass the same
+            :class:`~mi_loop.ad.control.ControlPoints` to every term of one
+            energy (see its notes).
 
         Returns
         -------
@@ -183,15 +138,12 @@ class LimitOperator:
             raise ValueError("LimitOperator.evaluate(): built with derivatives=False")
         dev = self._dev()
         xL = dev["S"].apply(self._points(x))
-        P = dev[None].apply(xL, expand=True)
-        du = dev["u"].apply(mi.Vector3f(xL), expand=True)
-        dv = dev["v"].apply(mi.Vector3f(xL), expand=True)
-        return P, du, dv
+        return dev[None].apply(xL), dev["u"].apply(mi.Vector3f(xL)), dev["v"].apply(mi.Vector3f(xL))
 
     def positions(self, x):
         """Limit points ``mi.Point3f (k)`` of control points ``x`` (see :meth:`evaluate`)."""
         dev = self._dev()
-        return dev[None].apply(dev["S"].apply(self._points(x)), expand=True)
+        return dev[None].apply(dev["S"].apply(self._points(x)))
 
     def positions_normals(self, x):
         """Limit points and unit limit normals from one evaluation: ``(mi.Point3f, mi.Normal3f)``."""

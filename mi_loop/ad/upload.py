@@ -40,14 +40,34 @@ def aligned(a, dtype) -> np.ndarray:
 
 
 def upload_float(a):
-    """Flat ``mi.Float`` of ``a`` (any shape, raveled), from an aligned float32 buffer."""
+    """Flat ``mi.Float`` of ``a`` (any shape, raveled), from an aligned float32 buffer.
+
+    Parameters
+    ----------
+    a : float array_like
+        Values, any shape.
+
+    Returns
+    -------
+    mi.Float (a.size)
+    """
     import mitsuba as mi
 
     return mi.Float(aligned(np.ravel(a), np.float32))
 
 
 def upload_uint(a):
-    """Flat ``mi.UInt32`` of ``a`` (any shape, raveled), from an aligned buffer."""
+    """Flat ``mi.UInt32`` of ``a`` (any shape, raveled), from an aligned buffer.
+
+    Parameters
+    ----------
+    a : non-negative int array_like
+        Indices, any shape, below 2**32.
+
+    Returns
+    -------
+    mi.UInt32 (a.size)
+    """
     import mitsuba as mi
 
     return mi.UInt32(aligned(np.ravel(a), np.uint32))
@@ -76,7 +96,14 @@ def upload_vec(cls, A):
 def to_numpy_points(x) -> np.ndarray:
     """``(k, 3)`` float64 NumPy copy of a ``mi.Point3f``/``mi.Vector3f`` (or a flat xyz ``mi.Float``).
 
-    Gradients are not copied.
+    Parameters
+    ----------
+    x : mi.Point3f (k), mi.Vector3f (k) or mi.Float (3k)
+        Device array; gradients are not copied.
+
+    Returns
+    -------
+    (k, 3) float64 numpy array
     """
     import mitsuba as mi
 

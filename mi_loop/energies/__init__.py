@@ -4,3 +4,5 @@
 - :mod:`~mi_loop.energies.coverage`: data points pull their nearest limit samples (point to plane);
 - :mod:`~mi_loop.energies.arap`: as-rigid-as-possible regulariser on the control mesh.
 """
+
+__all__: list = []

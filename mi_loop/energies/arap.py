@@ -10,7 +10,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mi_loop.ad.upload import upload_float, upload_uint, upload_vec
+from mi_loop.ad.control import ControlPoints
+from mi_loop.ad.sparse import IndexMap
+from mi_loop.ad.upload import upload_float, upload_vec
+from mi_loop.errors import fail
+from mi_loop.mesh.checks import check_points
 from mi_loop.mesh.topology import validate_faces
 
 __all__ = ["ARAP", "cotangent_weights"]
@@ -57,8 +61,8 @@ def cotangent_weights(V, F, min_weight: float = 1e-3):
         s = np.linalg.norm(np.cross(u, v), axis=1)
         bad = np.flatnonzero(s <= 1e-12 * np.maximum(np.sum(u * u, 1), np.sum(v * v, 1)))
         if len(bad):
-            raise ValueError(f"ARAP: face {bad[0]} = {F[bad[0]].tolist()} has zero area in the "
-                             "rest mesh; cotangent weights are undefined (remove or fix it)")
+            fail("ARAP", "rest faces of non-zero area (cotangent weights)",
+                 f"face {bad[0]} = {F[bad[0]].tolist()} of zero area; remove or fix it")
         corners.append((np.minimum(a, b), np.maximum(a, b), np.sum(u * v, 1) / s))
     i, j, cot = (np.concatenate(t) for t in zip(*corners))
     n = len(V)
@@ -132,16 +136,9 @@ class ARAP:
     """
 
     def __init__(self, V_rest, F, min_weight: float = 1e-3):
-        import mitsuba as mi
-
-        V = np.asarray(V_rest, dtype=np.float64)
-        if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-            raise ValueError(f"ARAP: V_rest must have shape (n, 3) with n >= 1, got {V.shape}")
-        bad = np.flatnonzero(~np.isfinite(V).all(1))
-        if len(bad):
-            raise ValueError(f"ARAP: rest vertex {bad[0]} = {V[bad[0]].tolist()} is not finite")
-        if not (np.isfinite(min_weight) and min_weight > 0):
-            raise ValueError(f"ARAP: min_weight must be a finite number > 0, got {min_weight!r}")
+        V = check_points(V_rest, "ARAP", "rest vertices")
+        if not (isinstance(min_weight, (int, float, np.number)) and np.isfinite(min_weight) and min_weight > 0):
+            fail("ARAP", "a finite min_weight > 0", repr(min_weight))
         F = validate_faces(F, len(V), "ARAP")
         self.V_rest, self.F, self.n = V, F, len(V)
         E, w = cotangent_weights(V, F, min_weight)
@@ -152,23 +149,26 @@ class ARAP:
         # S_i = sum_j w_ij e_ij e'_ij^T as one sparse product over directed edges
         self._gather = sp.csr_matrix((self.w, (self.I, np.arange(len(self.I)))),
                                      shape=(self.n, len(self.I)))
-        self._Id = upload_uint(self.I)
-        self._Jd = upload_uint(self.J)
+        self._Id = IndexMap(self.I, self.n)
+        self._Jd = IndexMap(self.J, self.n)
         self._wd = upload_float(self.w)
 
     def _numpy_points(self, V, func: str) -> np.ndarray:
         import mitsuba as mi
 
-        if isinstance(V, mi.Point3f):
+        if isinstance(V, ControlPoints):
+            V = V.numpy()
+        elif isinstance(V, mi.Point3f):
             V = np.array(V, dtype=np.float64).T
         elif isinstance(V, mi.Float):
             V = np.array(V, dtype=np.float64).reshape(-1, 3)
         V = np.asarray(V, dtype=np.float64)
         if V.shape != (self.n, 3):
-            raise ValueError(f"ARAP.{func}: expected ({self.n}, 3) control points, got {V.shape}")
+            raise ValueError(f"ARAP.{func}(): expected ({self.n}, 3) control points, got shape {V.shape}")
         bad = np.flatnonzero(~np.isfinite(V).all(1))
         if len(bad):
-            raise ValueError(f"ARAP.{func}: control point {bad[0]} = {V[bad[0]].tolist()} is not finite")
+            raise ValueError(f"ARAP.{func}(): expected finite control points, got point {bad[0]} = "
+                             f"{V[bad[0]].tolist()}")
         return V
 
     def rotations(self, V) -> np.ndarray:
@@ -198,8 +198,10 @@ class ARAP:
 
         Parameters
         ----------
-        x : mi.Float (3n, xyz interleaved) or mi.Point3f (n)
-            Control points, possibly with gradients enabled.
+        x : ControlPoints, mi.Float (3n, xyz interleaved) or mi.Point3f (n)
+            Control points, possibly with gradients enabled; pass the
+            :class:`~mi_loop.ad.control.ControlPoints` shared with the other
+            terms of the energy.
         R : (n, 3, 3) float numpy array or None
             Rotations from :meth:`rotations`; ``None`` computes them from ``x``
             (one device-to-host copy).
@@ -213,27 +215,23 @@ class ARAP:
         import drjit as dr
         import mitsuba as mi
 
-        from mi_loop.ad.operator import unravel_points
-
-        if isinstance(x, mi.Float):
-            if dr.width(x) != 3 * self.n:
-                raise ValueError(f"ARAP.energy: expected {3 * self.n} coordinates "
-                                 f"({self.n} points, xyz interleaved), got {dr.width(x)}")
-            x = unravel_points(x)
-        elif not isinstance(x, mi.Point3f):
-            raise TypeError(f"ARAP.energy: control points must be mi.Float (3n) or mi.Point3f, "
-                            f"got {type(x).__name__}")
-        elif dr.width(x) != self.n:
-            raise ValueError(f"ARAP.energy: expected {self.n} control points, got {dr.width(x)}")
+        if isinstance(x, mi.Point3f):
+            if dr.width(x) != self.n:
+                raise ValueError(f"ARAP.energy(): expected {self.n} control points, got {dr.width(x)}")
+            P = x
+        else:
+            x = ControlPoints.of(x, self.n, "ARAP.energy")
+            P = x.points
         if R is None:
-            R = self.rotations(x)
+            R = self.rotations(x if not isinstance(x, mi.Point3f) else np.array(x, dtype=np.float64).T)
         R = np.asarray(R, dtype=np.float64)
         if R.shape != (self.n, 3, 3):
-            raise ValueError(f"ARAP.energy: R must have shape ({self.n}, 3, 3), got {R.shape}")
+            raise ValueError(f"ARAP.energy(): expected R of shape ({self.n}, 3, 3), got {R.shape}")
         if not np.isfinite(R).all():
-            raise ValueError("ARAP.energy: R has non-finite entries; compute it with rotations()")
+            raise ValueError("ARAP.energy(): expected finite rotations R (compute them with rotations()), "
+                             "got non-finite entries")
         # rotated rest edges R_i e_ij: same size every iteration, so no recompilation
         Re = np.einsum("kab,kb->ka", R[self.I], self.e_rest)
         target = upload_vec(mi.Vector3f, Re)
-        d = dr.gather(mi.Point3f, x, self._Id) - dr.gather(mi.Point3f, x, self._Jd) - target
+        d = self._Id(P) - self._Jd(P) - target
         return dr.sum(self._wd * dr.squared_norm(d))

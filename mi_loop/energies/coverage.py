@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mi_loop.ad.upload import upload_float, upload_uint, upload_vec
+from mi_loop.ad.sparse import IndexMap
+from mi_loop.ad.upload import upload_float, upload_vec
 from mi_loop.mesh.checks import check_oriented_points, check_points
 
 __all__ = ["Coverage"]
@@ -86,24 +87,22 @@ class Coverage:
         -----
         Sets :attr:`nearest` ``(N,)``, the sample index of every data point.
         """
-        import mitsuba as mi
 
         Q = check_points(Q, "Coverage.update", "samples")
         self.nearest = cKDTree(Q).query(self.points, workers=-1)[1]
         self.n_samples = len(Q)
-        self._idx = upload_uint(self.nearest)
+        self._idx = IndexMap(self.nearest, len(Q))   # deterministic reverse pass
 
     def energy(self, Q):
         """``mean_i (n_i . (Q_{j(i)} - p_i))^2`` over the kept points, ``mi.Float (1)``, differentiable."""
         import drjit as dr
-        import mitsuba as mi
 
         if self.nearest is None:
             raise ValueError("Coverage.energy: call update(Q) first to find the nearest samples")
         if dr.width(Q) != self.n_samples:
             raise ValueError(f"Coverage.energy: expected {self.n_samples} samples (as at the last "
                              f"update), got {dr.width(Q)}")
-        q = dr.gather(mi.Point3f, Q, self._idx)
+        q = self._idx(Q)
         return dr.sum(self._w * dr.square(dr.dot(self._n, q - self._p)))
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mi_loop.ad.sparse import IndexMap
 from mi_loop.ad.upload import to_numpy_points, upload_float, upload_uint, upload_vec
 from mi_loop.errors import fail
 from mi_loop.mesh.checks import check_oriented_points, check_points
@@ -171,7 +172,7 @@ class IMLS:
         self._idx = upload_uint(self.neighbors.ravel())
         self._mask = upload_float(valid.ravel())
         self._inv_h2 = upload_float(np.repeat(1.0 / h ** 2, K))
-        self._rep = upload_uint(np.repeat(np.arange(len(Q)), K))
+        self._rep = IndexMap(np.repeat(np.arange(len(Q)), K), len(Q))   # deterministic reverse pass
 
     def values(self, Q):
         """IMLS function ``f(Q_j)`` at every sample.
@@ -197,7 +198,7 @@ class IMLS:
             raise ValueError(f"IMLS.values: expected {self.n_samples} samples (as at the last "
                              f"update), got {dr.width(Q)}; call update(Q) after resampling")
         K = self.max_neighbors
-        x = dr.gather(mi.Point3f, Q, self._rep)          # sample of each slot (k K)
+        x = self._rep(Q)                                  # sample of each slot (k K)
         p = dr.gather(mi.Point3f, self._p, self._idx)     # neighbour point
         nrm = dr.gather(mi.Vector3f, self._n, self._idx)  # neighbour normal
         d = x - p

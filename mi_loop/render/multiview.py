@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mi_loop.ad.control import ControlPoints
+from mi_loop.ad.threads import one_thread
 from mi_loop.render.plugin import create, plain_mesh
 from mi_loop.render.scene import scene_dict
 
@@ -40,6 +42,10 @@ class RigOptions:
     mode : {'shading', 'silhouette'}
         Grey diffuse shading under a key light and an environment, or a black
         silhouette against a white environment.
+    deterministic : bool
+        Run the reverse render on one LLVM thread (:func:`mi_loop.ad.threads.one_thread`):
+        Mitsuba scatters the image gradient into the vertex buffer with atomic
+        adds, whose order otherwise changes from run to run. Slower.
     """
 
     views: int = 20
@@ -49,12 +55,28 @@ class RigOptions:
     level: int = 1
     loss: str = "l1"
     mode: str = "shading"
+    deterministic: bool = False
 
 
 def rig_views(n_views: int):
     """``n_views`` (azimuth, elevation) pairs in degrees spread over the whole sphere.
 
     Fibonacci-sphere directions (y up), so every part of the subject is seen.
+
+    Parameters
+    ----------
+    n_views : int
+        Number of cameras, at least 1.
+
+    Returns
+    -------
+    list of (float, float)
+        Azimuth in ``[0, 360)`` and elevation in ``(-90, 90)`` degrees.
+
+    Examples
+    --------
+    >>> [round(e) for _, e in rig_views(3)]
+    [42, 0, -42]
     """
     if n_views < 1:
         raise ValueError(f"rig_views(): expected at least one view, got {n_views}")
@@ -118,14 +140,27 @@ class Renderer:
         return images
 
     def view_loss(self, x, k: int, targets, seed: int):
-        """Image loss of control points ``x`` in view ``k`` (differentiable, ``mi.Float (1)``)."""
+        """Image loss of control points ``x`` in view ``k`` (differentiable, ``mi.Float (1)``).
+
+        Parameters
+        ----------
+        x : ControlPoints or mi.Float (3n)
+            Control points (normalised units), possibly with gradients.
+        k : int
+            View.
+        targets : list of mi.TensorXf
+            Target images of every view (:meth:`targets`).
+        seed : int
+            Seed of the render's sampler.
+
+        Returns
+        -------
+        mi.Float (1)
+        """
         import drjit as dr
         import mitsuba as mi
 
-        from mi_loop.ad.operator import forget_unravelled
-
-        forget_unravelled()   # this view's geometry gets a graph of its own
-        self.params[self.key] = x
+        self.params[self.key] = x.flat if isinstance(x, ControlPoints) else x
         self.params.set_dirty(self.key)
         self.params.update()
         img = mi.render(self.scene, self.params, spp=self.options.spp,
@@ -148,7 +183,8 @@ class Renderer:
         for k in view_ids:
             L = self.view_loss(x, k, targets, seed)
             total += float(L[0])
-            dr.backward(L * (weight / len(view_ids)))
+            with one_thread(self.options.deterministic):
+                dr.backward(L * (weight / len(view_ids)))
         return total / len(view_ids)
 
     def loss(self, x, view_ids, targets, seed: int):

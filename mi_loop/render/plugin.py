@@ -16,6 +16,18 @@ control face and whose vertex normals are the exact limit normals.
 ``mi.traverse`` exposes ``control_points``, a differentiable flat ``mi.Float``
 of length ``3 n`` (xyz interleaved, world space); updating it recomputes the
 mesh through the cached :class:`mi_loop.LimitOperator`, with gradients.
+
+Integrators for optimising the control points: gradients through silhouettes
+come only from ``direct_projective`` and ``prb_projective`` (``prb``,
+``direct``, ``path`` and ``aov`` miss them). Give those integrators
+``"sppi": 0`` unless shadow boundaries carry the signal: ``sppi`` samples the
+gradients of *indirect* visibility changes (shadows the shape casts on itself
+or on other shapes under area or environment lights) and builds a guiding
+structure for them in every render, while silhouettes (``sppp``) and shading
+(``sppc``) do not need it. ``bench/bench_iteration.py`` measures one view of
+a 1000-vertex cage at level 1, 96x96 and 4 spp, forward and backward: 81 ms
+with ``sppi: 0``, 8.0 s with the default (2 cores). Render views one at a time:
+the ``batch`` sensor fails with the projective integrators.
 """
 from __future__ import annotations
 

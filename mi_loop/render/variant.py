@@ -10,7 +10,8 @@ is compiled (Debian 12's LLVM 15 aborts the process):
 """
 from __future__ import annotations
 
-__all__ = ["DEFAULT_VARIANT", "JIT_AD_PREFIXES", "jit_ad_variants", "register", "set_variant"]
+__all__ = ["DEFAULT_VARIANT", "JIT_AD_PREFIXES", "cuda_available", "jit_ad_variants", "register",
+           "set_variant", "usable_variants"]
 
 #: Variant used by the CLI, the examples and the tests unless told otherwise: CPU (LLVM), autodiff, RGB.
 DEFAULT_VARIANT = "llvm_ad_rgb"
@@ -31,12 +32,47 @@ def jit_ad_variants() -> list:
     return [v for v in mi.variants() if v.startswith(JIT_AD_PREFIXES)]
 
 
-def _check_backend(name: str) -> None:
+def cuda_available() -> bool:
+    """Whether Dr.Jit found a CUDA driver and device (``cuda_ad_*`` variants can run).
+
+    Returns
+    -------
+    bool
+    """
+    import drjit as dr
+
+    return bool(dr.has_backend(dr.JitBackend.CUDA))
+
+
+def usable_variants(kind: str = "ad_rgb") -> list:
+    """The JIT autodiff variants that can run on this machine: LLVM always, CUDA where a GPU is.
+
+    Parameters
+    ----------
+    kind : str, optional
+        Variant suffix after ``llvm_``/``cuda_`` (default ``'ad_rgb'``).
+
+    Returns
+    -------
+    list of str
+        E.g. ``['llvm_ad_rgb']`` here, ``['llvm_ad_rgb', 'cuda_ad_rgb']`` with a GPU.
+    """
+    names = jit_ad_variants()
+    out = [f"llvm_{kind}"] if f"llvm_{kind}" in names else []
+    if f"cuda_{kind}" in names and cuda_available():
+        out.append(f"cuda_{kind}")
+    return out
+
+
+def _check_backend(name: str, func: str) -> None:
     """Stop with one line before a variant whose backend would crash or is missing."""
     if name.startswith("llvm_"):
         from mi_loop._llvm import check_loaded_llvm
 
         check_loaded_llvm()
+    elif name.startswith("cuda_") and not cuda_available():
+        raise RuntimeError(f"{func}(): expected a CUDA device for {name!r}, got none (Dr.Jit found no CUDA "
+                           "driver or GPU); use an llvm_ad_* variant such as 'llvm_ad_rgb'")
 
 
 def set_variant(name: str = DEFAULT_VARIANT) -> None:
@@ -66,7 +102,7 @@ def set_variant(name: str = DEFAULT_VARIANT) -> None:
     usable = jit_ad_variants()
     if name not in usable:
         raise ValueError(f"set_variant(): expected one of {usable}, got {name!r}")
-    _check_backend(name)
+    _check_backend(name, "set_variant")
     mi.set_variant(name)
     register()
 
@@ -100,5 +136,5 @@ def register():
     if variant is None or not variant.startswith(JIT_AD_PREFIXES):
         raise RuntimeError(f"register(): expected a Mitsuba llvm_ad_* or cuda_ad_* variant to be set, "
                            f"got {variant!r}; call mi_loop.set_variant() or mi.set_variant() first")
-    _check_backend(variant)
+    _check_backend(variant, "register")
     return plugin.register()

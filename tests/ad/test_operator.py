@@ -25,7 +25,7 @@ def _np(p):
 
 
 @pytest.mark.parametrize("mesh", [bipyramid(7), creased_cube(), open_cylinder()], ids=lambda m: m.name)
-def test_operator_matches_scipy_forward_and_adjoint(mesh):
+def test_operator_matches_scipy_forward_and_adjoint(mesh, jit_variant):
     fid, uv = _samples(mesh.F, 400)
     op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv, creases=mesh.creases)
     x = mi.Float(mesh.V.ravel().astype(np.float32))

@@ -54,7 +54,7 @@ def assert_matches_limit(shape, V, F, level, creases=None):
     np.testing.assert_allclose(N, N_ref, rtol=0, atol=2e-5)
 
 
-def test_load_dict_gives_exact_limit_surface(blob, blob_file):
+def test_load_dict_gives_exact_limit_surface(blob, blob_file, jit_variant):
     V, F = blob
     shape = mi.load_dict({"type": "loop_subdiv", "filename": str(blob_file), "level": LEVEL})
     assert shape.face_count() == len(F) * 4 ** LEVEL
@@ -172,7 +172,7 @@ def test_set_variant_rejects_non_ad_variant():
     assert mi.variant() == "llvm_ad_rgb"
 
 
-def test_render_gradient_matches_finite_differences(blob):
+def test_render_gradient_matches_finite_differences(blob, jit_variant):
     """d loss / d control_points along two directions: AD vs central differences.
 
     Scene: the blob at level 2 in a constant environment, 32x32 pixels,
@@ -210,3 +210,17 @@ def test_render_gradient_matches_finite_differences(blob):
         ad = gradient @ d
         assert abs(fd) > 1e-3                     # the direction does change the image
         np.testing.assert_allclose(ad, fd, rtol=0.1)
+
+
+def test_set_variant_without_a_gpu_refuses_cuda_with_one_line():
+    from mi_loop.render.variant import cuda_available
+
+    if cuda_available():          # on a GPU machine the CUDA variants run (see jit_variant); nothing to refuse
+        mi_loop.set_variant("cuda_ad_rgb")
+        assert mi.variant() == "cuda_ad_rgb"
+        mi_loop.set_variant("llvm_ad_rgb")
+        return
+    with pytest.raises(RuntimeError, match=r"set_variant\(\): expected a CUDA device for 'cuda_ad_rgb', got none "
+                                           r"\(Dr.Jit found no CUDA driver or GPU\); use an llvm_ad_\* variant"):
+        mi_loop.set_variant("cuda_ad_rgb")
+    assert mi.variant() == "llvm_ad_rgb"

@@ -1,0 +1,119 @@
+"""How a tiny perturbation grows through a fitted sequence, and in which direction.
+
+With bit-reproducible runs, the question of run-to-run spread becomes one of
+conditioning: how much does a perturbation of size ``--eps`` (relative to the
+bounding-box diagonal, added to the control points after frame 0, random
+direction) change the later frames? Each later frame's control points of the
+perturbed run are compared with the unperturbed run's:
+
+- ``ctrl max`` / ``ctrl median``: distance between the same control point, / diagonal;
+- ``tangential``: share of the squared control-point difference that lies in
+  the tangent plane of the limit surface at that vertex (its limit normal from
+  :func:`mi_loop.limit_normals`); 2/3 would be an isotropic difference;
+- ``limit mean``: mean distance between the same limit-surface point (level 2), / diagonal;
+- ``gain``: ``ctrl max`` / ``eps``.
+
+Frames: fox_walk_24f.npz frames 0, 3, 6, 9, 12 at 200 control vertices (the
+case of the reproducibility issue), the defaults of ``mi-loop fit-sequence``;
+``--image`` adds the image term (20 views, run with ``deterministic=True`` so
+that the only difference is the perturbation).
+
+Usage::
+
+    .venv/bin/python bench/bench_conditioning.py [--eps 1e-6] [--image] [--json out.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+FOX = ROOT.parent / "shared" / "data" / "sequences" / "fox_walk_24f.npz"
+FRAMES = [0, 3, 6, 9, 12]
+
+
+def run(frames, F_data, options, perturb=None, seed=0):
+    """Fit the frames; return the normalised control points after every frame and the cage faces."""
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.sequence import fit_frame
+    from mi_loop.fitting.static import Normalisation, sample_parameters
+    from mi_loop.fitting.template import mesh_template
+    from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.render.multiview import Renderer
+
+    norm = Normalisation.of(frames[0])
+    x, F, _ = mesh_template(norm.forward(frames[0]), F_data, 200)
+    lr = 0.02 * mean_edge_length(x, F)
+    op = LimitOperator(F, len(x), *sample_parameters(F, len(x), "level1"), derivatives=False)
+    renderer = None
+    if options.image:
+        lo, hi = x.min(0), x.max(0)
+        pad = 0.15 * (hi - lo).max()
+        renderer = Renderer(x, F, (lo - pad, hi + pad), options.rig)
+    fits = []
+    for t, X in enumerate(frames):
+        P, N, _ = sample_surface(X, F_data, 20_000, seed=seed + t)
+        Vt = norm.forward(X)
+        targets = renderer.targets(Vt, F_data, vertex_normals(Vt, F_data)) if renderer else None
+        x, _ = fit_frame(x, F, norm.forward(P), N, op, targets, renderer, options, t, lr)
+        if t == 0 and perturb is not None:
+            x = x + perturb
+        fits.append(x.copy())
+    return fits, F
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--eps", type=float, default=1e-6)
+    parser.add_argument("--image", action="store_true")
+    parser.add_argument("--alpha", type=float, help="ARAP weight (default: SequenceOptions's)")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+
+    import mi_loop
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.subdiv.masks import limit_mesh, limit_normals
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    data = np.load(FOX)
+    frames = [np.asarray(data["vertices"][t], dtype=np.float64) for t in FRAMES]
+    options = SequenceOptions(image=args.image, deterministic=True,
+                              **({} if args.alpha is None else {"alpha": args.alpha}))
+    base, F = run(frames, data["faces"], options)
+    diag = float(np.linalg.norm(base[0].max(0) - base[0].min(0)))
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal(base[0].shape)
+    perturb = args.eps * diag * d / np.linalg.norm(d, axis=1).max()
+    other, _ = run(frames, data["faces"], options, perturb)
+    print(f"# bench_conditioning: {os.cpu_count()} cores, eps {args.eps:g} of the diagonal, "
+          f"image term {'on' if args.image else 'off'}, alpha {options.alpha:g}")
+    print("| frame | ctrl max | ctrl median | tangential | limit mean | gain |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    rows = []
+    for t, (a, b) in enumerate(zip(base, other)):
+        delta = b - a
+        n = limit_normals(a, F)
+        normal2 = np.sum(delta * n, axis=1) ** 2
+        total2 = np.sum(delta * delta, axis=1)
+        tangential = float(1.0 - normal2.sum() / max(total2.sum(), 1e-300))
+        dist = np.sqrt(total2) / diag
+        La, Lb = limit_mesh(a, F, 2)[0], limit_mesh(b, F, 2)[0]
+        limit_mean = float(np.linalg.norm(La - Lb, axis=1).mean() / diag)
+        row = {"frame": FRAMES[t], "ctrl_max": float(dist.max()), "ctrl_median": float(np.median(dist)),
+               "tangential": tangential, "limit_mean": limit_mean, "gain": float(dist.max() / args.eps)}
+        rows.append(row)
+        print(f"| {FRAMES[t]} | {row['ctrl_max']:.2e} | {row['ctrl_median']:.2e} | {tangential:.2f} | "
+              f"{limit_mean:.2e} | {row['gain']:.1f} |", flush=True)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"eps": args.eps, "image": args.image, "rows": rows}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
