@@ -130,13 +130,14 @@ def random_samples(m, k, seed=0):
 # -- measurements ----------------------------------------------------------------
 def bench_build(V, F, fid, uv, runs, res):
     from mi_loop import LimitOperator
-    from mi_loop.subdiv.limit import _check_samples, build_hierarchy, level_rows
+    from mi_loop.subdiv.hierarchy import build_hierarchy
+    from mi_loop.subdiv.limit import check_samples, level_rows
 
     n = len(V)
     # One untimed warm-up per step: the first large allocations page-fault.
     res["hierarchy"] = stats(timed(lambda: build_hierarchy(F, n), runs, warmup=1)[0])
     h = build_hierarchy(F, n)
-    f, u = _check_samples(fid, uv, len(F), "bench")
+    f, u = check_samples(fid, uv, len(F), "bench")
     res["rows"] = stats(timed(lambda: level_rows(h, f, u, (None, "u", "v")), runs, warmup=1)[0])
     res["composed S_L"] = stats(timed(h.composed, runs)[0])
     res["op build (P)"] = stats(timed(lambda: LimitOperator(F, n, fid, uv, derivatives=False), runs,

@@ -191,7 +191,7 @@ def rows_to_csr(rows: dict, n_rows: int, n_cols: int) -> sp.csr_matrix:
 def control_level(F, n_vertices: int, creases=None) -> Level:
     """Return level 0 with parameter labels at the control vertices."""
     F = [tuple(int(x) for x in f) for f in np.asarray(F)]
-    label = [dict() for _ in range(n_vertices)]
+    label = [{} for _ in range(n_vertices)]
     for f, (a, b, c) in enumerate(F):
         label[a][f] = (0.0, 0.0)
         label[b][f] = (1.0, 0.0)
@@ -357,3 +357,80 @@ def eigen_vertex_normal(V, level: Level, v: int, hint: np.ndarray) -> np.ndarray
     n = np.cross(np.real(L[:, 1]) @ P, np.real(L[:, 2]) @ P)
     n = n / np.linalg.norm(n)
     return n if np.dot(n, hint) > 0 else -n
+
+
+# --------------------------------------------------------------------------
+# Exact parametric derivatives on polynomial sub-patches
+# --------------------------------------------------------------------------
+
+def _inside(i: int, j: int, corner: tuple, up: bool, side: int) -> bool:
+    """Whether grid point (i, j) lies in the closed sub-triangle at ``corner`` (grid units)."""
+    a, b = i - corner[0], j - corner[1]
+    if up:      # (c0, c1), (c0 + side, c1), (c0, c1 + side)
+        return a >= 0 and b >= 0 and a + b <= side
+    return a <= 0 and b <= 0 and a + b >= -side   # (c0, c1) is the right-angle corner of a down triangle
+
+
+def polynomial_derivatives(h: Hierarchy, V, patch_level: int):
+    """Return exact d/du, d/dv of the limit at grid points inside regular sub-patches.
+
+    After ``patch_level >= 1`` Loop steps of a mesh without finite sharpness,
+    a sub-triangle of that level whose three corners are not control vertices
+    has three regular corners (new vertices are regular), so the limit over it
+    is one quartic polynomial in ``(u, v)`` (a box spline). On the dyadic grid
+    of the finest level (spacing ``d = 2^-L``), the five-point stencil
+    ``(f(x - 2d) - 8 f(x - d) + 8 f(x + d) - f(x + 2d)) / (12 d)`` is exact for
+    quartics, so it gives the exact derivative wherever the stencil fits in
+    one such sub-triangle (closed).
+
+    Parameters
+    ----------
+    h : Hierarchy
+        From :func:`subdivide`, with ``len(h.levels) - 1 > patch_level``.
+    V : (n, 3) float array
+        Control points.
+    patch_level : int
+        Level of the polynomial sub-triangles (1 or more).
+
+    Returns
+    -------
+    face_ids : (k,) int array
+    uv : (k, 2) float array
+    du, dv : (k, 3) float arrays
+        Exact derivatives; ``du`` is NaN where only the v-stencil fits, and
+        ``dv`` where only the u-stencil fits.
+    """
+    L = len(h.levels) - 1
+    if patch_level < 1 or patch_level > L - 2:
+        raise ValueError(f"oracle: patch_level must be in [1, L - 2 = {L - 2}], got {patch_level}")
+    if any(0.0 < s < INF for s in h.levels[0].sharpness.values()):
+        raise ValueError("oracle: finite sharpness: sub-patches are polynomial only once it has expired")
+    R, side = 2 ** L, 2 ** (L - patch_level)
+    limit = limit_rows(h) @ np.asarray(V, dtype=float)
+    vertex_at = {}   # (control face, i, j) -> level-L vertex at (u, v) = (i, j) / R
+    for v, lab in enumerate(h.levels[-1].label):
+        for f, (u, w) in lab.items():
+            vertex_at[(f, round(u * R), round(w * R))] = v
+    control_corners = {(0, 0), (R, 0), (0, R)}
+    patches = []     # (corner, up) of the sub-triangles without a control vertex
+    for ci in range(0, R, side):
+        for cj in range(0, R - ci, side):
+            if not control_corners & {(ci, cj), (ci + side, cj), (ci, cj + side)}:
+                patches.append(((ci, cj), True))
+            if ci + cj + 2 * side <= R:
+                patches.append(((ci + side, cj + side), False))
+    out = []
+    for f in range(len(h.levels[0].F)):
+        for i in range(R + 1):
+            for j in range(R + 1 - i):
+                d = [np.full(3, np.nan), np.full(3, np.nan)]
+                for axis, (di, dj) in enumerate(((1, 0), (0, 1))):
+                    stencil = [(i + k * di, j + k * dj) for k in (-2, -1, 0, 1, 2)]
+                    if any(all(_inside(a, b, c, up, side) for a, b in stencil) for c, up in patches):
+                        y = [limit[vertex_at[(f, a, b)]] for a, b in stencil]
+                        d[axis] = (y[0] - 8 * y[1] + 8 * y[3] - y[4]) * R / 12.0
+                if np.isfinite(d[0]).all() or np.isfinite(d[1]).all():
+                    out.append((f, i / R, j / R, d[0], d[1]))
+    face_ids = np.array([o[0] for o in out])
+    uv = np.array([(o[1], o[2]) for o in out])
+    return face_ids, uv, np.array([o[3] for o in out]), np.array([o[4] for o in out])

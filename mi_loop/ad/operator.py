@@ -14,7 +14,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.ad.control import ControlPoints
-from mi_loop.subdiv.limit import build_hierarchy, check_samples, level_rows, padded_to_csr
+from mi_loop.subdiv.hierarchy import build_hierarchy
+from mi_loop.subdiv.limit import check_samples, level_rows, padded_to_csr
 
 __all__ = ["DERIVATIVES", "LimitOperator"]
 

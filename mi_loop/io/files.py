@@ -14,12 +14,32 @@ from pathlib import Path
 
 import numpy as np
 
+from mi_loop.errors import fail
+
 __all__ = ["atomic_open", "ensure_writable_dir", "first_missing_ancestor", "remove_if_empty",
            "staged_outputs", "write_png", "write_text"]
 
 
 def first_missing_ancestor(path) -> Path | None:
-    """The outermost directory of ``path`` (itself included) that does not exist yet, or None."""
+    """Return the outermost directory of ``path`` (itself included) that does not exist yet.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A directory about to be created.
+
+    Returns
+    -------
+    pathlib.Path or None
+        Absolute; None when ``path`` exists.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     first_missing_ancestor(Path(d) / "a" / "b") == Path(d).absolute() / "a"
+    True
+    """
     path = Path(path).absolute()
     missing = None
     for p in [path, *path.parents]:
@@ -30,7 +50,16 @@ def first_missing_ancestor(path) -> Path | None:
 
 
 def remove_if_empty(top: Path | None, path) -> None:
-    """Remove ``path`` and its parents up to ``top`` when they are empty (after a failed run)."""
+    """Remove ``path`` and its parents up to ``top`` when they are empty (after a failed run).
+
+    Parameters
+    ----------
+    top : pathlib.Path or None
+        The outermost directory the run created (:func:`first_missing_ancestor`);
+        None removes nothing.
+    path : str or os.PathLike
+        The output directory.
+    """
     if top is None:
         return
     path = Path(path).absolute()
@@ -47,6 +76,16 @@ def staged_outputs(outdir):
 
     All outputs of a run appear together (each move is atomic); on failure the
     staging directory is removed and ``outdir`` keeps what it had.
+
+    Parameters
+    ----------
+    outdir : str or os.PathLike
+        An existing, writable directory.
+
+    Yields
+    ------
+    pathlib.Path
+        The staging directory: write the outputs there.
     """
     import shutil
 
@@ -85,7 +124,8 @@ def ensure_writable_dir(path) -> Path:
         with tempfile.TemporaryFile(dir=path):
             pass
     except OSError as exc:
-        raise ValueError(f"cannot write to directory '{path}': {exc.strerror or exc}") from exc
+        fail("ensure_writable_dir", "a directory that files can be created in",
+             f"'{path}': {exc.strerror or exc}")
     return path
 
 
@@ -101,7 +141,18 @@ def _file_mode(path: Path) -> int:
 
 @contextlib.contextmanager
 def atomic_open(path):
-    """Yield a binary file in ``path``'s directory that replaces ``path`` on success."""
+    """Yield a binary file in ``path``'s directory that replaces ``path`` on success.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist. An existing file keeps its permissions.
+
+    Yields
+    ------
+    file object
+        Open for binary writing; on an exception it is deleted and ``path`` is untouched.
+    """
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
@@ -142,12 +193,12 @@ def write_png(path, image) -> Path:
 
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
-        raise ValueError(f"write_png: expected an (h, w, 3|4) image, got shape {image.shape}")
+        fail("write_png", "an (h, w, 3|4) image", f"shape {image.shape}")
     if image.dtype != np.uint8:
         bad = ~((image >= 0) & (image <= 1))
         if bad.any():
-            raise ValueError("write_png: float pixels must lie in [0, 1] (no NaN); "
-                             f"got {image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
+            fail("write_png", "float pixels in [0, 1] (no NaN)",
+                 f"{image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
         image = np.round(image * 255).astype(np.uint8)
     path = Path(path)
     with atomic_open(path) as f:
@@ -156,7 +207,20 @@ def write_png(path, image) -> Path:
 
 
 def write_text(path, text: str) -> Path:
-    """Write a UTF-8 text file (e.g. JSON), atomically; returns the path."""
+    """Write a UTF-8 text file (e.g. JSON), atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    text : str
+        Content.
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+    """
     path = Path(path)
     with atomic_open(path) as f:
         f.write(text.encode("utf-8"))

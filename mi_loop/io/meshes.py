@@ -1,27 +1,88 @@
-"""Mesh files: read control meshes and sequences of frames, write PLY atomically.
+"""Mesh files: read control meshes (PLY, OBJ, OFF, glTF/GLB), write PLY atomically.
 
-Vertex order is always kept as stored: the control points of a Loop surface are
-addressed by index.
+Vertex order is kept as stored (the control points of a Loop surface are
+addressed by index); polygons are split into triangle fans in the file's
+face order, and :func:`read_control_mesh` says how many were split. glTF
+files are the one exception to "as stored": their vertices are welded (see
+:func:`mi_loop.io.formats.read_gltf`).
 """
 from __future__ import annotations
 
-import glob
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from mi_loop.errors import fail
 from mi_loop.io.files import atomic_open
+from mi_loop.io.formats import MESH_SUFFIXES, fan_triangulate, read_polygons
 
-__all__ = ["MESH_SUFFIXES", "read_frames", "read_mesh", "write_ply"]
+__all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_mesh", "write_ply"]
 
-MESH_SUFFIXES = (".ply", ".obj", ".off")
+
+@dataclass(frozen=True)
+class ControlMesh:
+    """A triangle mesh as read from a file, and how many of the file's polygons were split.
+
+    Parameters
+    ----------
+    V : (n, 3) float64 numpy array
+        Vertex positions, in the file's order (glTF: welded).
+    F : (m, 3) int64 numpy array
+        Triangles; a polygon of ``k > 3`` corners became ``k - 2`` consecutive
+        triangles (a fan from its first corner), in the file's face order.
+    n_split : int
+        Number of the file's faces with more than three corners (0 for a
+        triangle mesh); ``len(F)`` minus the number of the file's faces is
+        how many triangles the splitting added.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    n_split: int
+
+
+def read_control_mesh(path) -> ControlMesh:
+    """Read a mesh file and say how many polygons were split into triangles.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.ply``, ``.obj``, ``.off``, ``.glb`` or ``.gltf`` file. A glTF file
+        must hold one mesh (its primitives are merged); it is read in its rest
+        pose.
+
+    Returns
+    -------
+    ControlMesh
+        ``V``, ``F`` and ``n_split``. The mesh is not validated as a Loop
+        control mesh: call :func:`mi_loop.mesh.topology.validate_mesh`.
+
+    Raises
+    ------
+    ValueError
+        Missing file, unsupported suffix, a file that does not parse, a
+        non-finite vertex, a face index out of range, no vertices or no faces,
+        several meshes in a glTF file; the message names the file and the
+        offending vertex, face or line.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = os.path.join(d, "quad.obj")
+    ...     _ = open(p, "w").write("v 0 0 0\\nv 1 0 0\\nv 1 1 0\\nv 0 1 0\\nf 1 2 3 4\\n")
+    ...     mesh = read_control_mesh(p)
+    >>> mesh.F.tolist(), mesh.n_split
+    ([[0, 1, 2], [0, 2, 3]], 1)
+    """
+    return _read(path, "read_control_mesh")
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle control mesh from a PLY, OBJ or OFF file.
+    """Read a triangle mesh from a PLY, OBJ, OFF or glTF/GLB file.
 
-    Vertex order is kept as stored (no merging, no reordering), because the
-    control points of a Loop surface are addressed by index.
+    The same as :func:`read_control_mesh` without the count of split polygons.
 
     Parameters
     ----------
@@ -30,41 +91,33 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
 
     Returns
     -------
-    V : (n, 3) float64 NumPy array
-        Vertex positions.
-    F : (m, 3) int64 NumPy array
-        Triangles as vertex indices (polygons are fan-triangulated by trimesh).
+    V : (n, 3) float64 numpy array
+        Vertex positions, in the file's order (glTF: welded).
+    F : (m, 3) int64 numpy array
+        Triangles (polygons fan-triangulated in the file's order).
 
     Raises
     ------
     ValueError
-        If the file is missing, has an unsupported suffix, cannot be parsed,
-        or holds no vertices or no faces.
+        As :func:`read_control_mesh`.
     """
-    import trimesh
+    mesh = _read(path, "read_mesh")
+    return mesh.V, mesh.F
 
+
+def _read(path, func: str) -> ControlMesh:
     path = Path(path)
-    where = f"read_mesh: '{path}'"
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise ValueError(f"{where}: expected a {'/'.join(MESH_SUFFIXES)} file, got suffix '{path.suffix}'")
+        fail(func, f"a {', '.join(MESH_SUFFIXES)} file", f"'{path}' (suffix '{path.suffix}')")
     if not path.is_file():
-        raise ValueError(f"{where}: no such file")
-    try:
-        mesh = trimesh.load(str(path), process=False)
-    except Exception as exc:  # trimesh raises many types for malformed files
-        raise ValueError(f"{where}: cannot parse mesh ({type(exc).__name__}: {exc})") from exc
-    if isinstance(mesh, trimesh.Scene):
-        parts = list(mesh.geometry.values())
-        if len(parts) > 1:
-            raise ValueError(f"{where}: file holds {len(parts)} separate meshes, expected one")
-        mesh = parts[0] if parts else None
-    V = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    F = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+        fail(func, "an existing file", f"'{path}': no such file")
+    V, counts, items = read_polygons(path, func, objects="one")
     if len(V) == 0:
-        raise ValueError(f"{where}: file holds no vertices")
-    if len(F) == 0:
-        raise ValueError(f"{where}: file holds {len(V)} vertices but no faces")
-    return V, F
+        fail(func, f"vertices in '{path}'", "none")
+    if len(counts) == 0:
+        fail(func, f"faces in '{path}'", f"{len(V)} vertices and no faces (a point cloud?)")
+    F, n_split = fan_triangulate(counts, items)
+    return ControlMesh(V, F, n_split)
 
 
 def write_ply(path, V, F, normals=None) -> Path:
@@ -94,19 +147,19 @@ def write_ply(path, V, F, normals=None) -> Path:
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-        raise ValueError(f"write_ply: expected V of shape (n, 3) with n > 0, got {V.shape}")
+        fail("write_ply", "V of shape (n, 3) with n > 0", f"shape {V.shape}")
     if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"write_ply: expected integer F of shape (m, 3), got {F.dtype} {F.shape}")
+        fail("write_ply", "integer F of shape (m, 3)", f"{F.dtype} array of shape {F.shape}")
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
-        raise ValueError(f"write_ply: face {bad} = {F[bad].tolist()} indexes outside [0, {len(V)})")
+        fail("write_ply", f"face indices in [0, {len(V)})", f"face {bad} = {F[bad].tolist()}")
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     header = ["ply", "format binary_little_endian 1.0", "comment written by mi_loop",
               f"element vertex {len(V)}", "property double x", "property double y", "property double z"]
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float32)
         if normals.shape != V.shape:
-            raise ValueError(f"write_ply: expected normals of shape {V.shape}, got {normals.shape}")
+            fail("write_ply", f"normals of shape {V.shape}", f"shape {normals.shape}")
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
         header += ["property float nx", "property float ny", "property float nz"]
     header += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
@@ -125,77 +178,3 @@ def write_ply(path, V, F, normals=None) -> Path:
         f.write(vertices.tobytes())
         f.write(faces.tobytes())
     return path
-
-
-def read_frames(inputs) -> list:
-    """List the frames of a sequence without reading them (they are read one at a time).
-
-    Parameters
-    ----------
-    inputs : list of str or os.PathLike
-        One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``; or mesh /
-        point-cloud files, directories (their PLY/OBJ/OFF/XYZ/PTS/NPZ files,
-        sorted by name) or glob patterns such as ``'scan_*.ply'`` (sorted).
-
-    Returns
-    -------
-    list of callables
-        ``frames[t]()`` reads frame ``t`` and returns ``(name, V_or_P, F_or_None, N_or_None)``.
-
-    Raises
-    ------
-    ValueError
-        Empty sequence, missing paths, an NPZ without ``vertices``/``faces``.
-    """
-    suffixes = {".ply", ".obj", ".off", ".xyz", ".pts", ".txt", ".npz"}
-    paths = []
-    for item in inputs:
-        p = Path(item)
-        if p.is_dir():
-            paths += sorted(q for q in p.iterdir() if q.suffix.lower() in suffixes)
-        elif p.exists():
-            paths.append(p)
-        elif any(c in str(item) for c in "*?["):   # a quoted glob pattern
-            matches = sorted(Path(m) for m in glob.glob(str(item)))
-            matches = [m for m in matches if m.is_file() and m.suffix.lower() in suffixes]
-            if not matches:
-                raise ValueError(f"read_frames: no frame file matches '{item}'")
-            paths += matches
-        else:
-            raise ValueError(f"read_frames: no such file or directory: '{p}'")
-    if not paths:
-        raise ValueError("read_frames: the sequence is empty (no frame files found)")
-    if len(paths) == 1 and paths[0].suffix.lower() == ".npz":
-        try:
-            data = np.load(paths[0])
-            Vs, F = np.asarray(data["vertices"], dtype=np.float64), np.asarray(data["faces"])
-        except KeyError as exc:
-            raise ValueError(f"read_frames: '{paths[0]}' has no array {exc}; expected "
-                             "'vertices' (T, V, 3) and 'faces' (F, 3)") from exc
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"read_frames: cannot read '{paths[0]}': {exc}") from exc
-        if Vs.ndim != 3 or Vs.shape[2] != 3 or len(Vs) == 0:
-            raise ValueError(f"read_frames: '{paths[0]}' vertices must be (T, V, 3) with T > 0, "
-                             f"got {Vs.shape}")
-        return [(lambda t=t: (f"{paths[0].stem}[{t}]", Vs[t], F, None)) for t in range(len(Vs))]
-
-    def reader(p):
-        def read():
-            from mi_loop.io.points import load_oriented_points
-
-            if p.suffix.lower() in {".obj", ".off"} or _has_faces(p):
-                V, F = read_mesh(p)
-                return p.name, V, F, None
-            P, N, _ = load_oriented_points(p)
-            return p.name, P, None, N
-        return read
-    return [reader(p) for p in paths]
-
-
-def _has_faces(path: Path) -> bool:
-    """Whether a PLY file declares faces (header only)."""
-    if path.suffix.lower() != ".ply":
-        return False
-    with open(path, "rb") as f:
-        head = f.read(4096).split(b"end_header")[0]
-    return b"element face" in head and not b"element face 0" in head

@@ -37,7 +37,16 @@ def face_normals(V, F) -> np.ndarray:
 
 
 def face_areas(V, F) -> np.ndarray:
-    """Triangle areas, ``(m,)`` float64.
+    """Return the triangle areas.
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+    F : (m, 3) int numpy array
+
+    Returns
+    -------
+    (m,) float64 numpy array
 
     Examples
     --------
@@ -48,7 +57,7 @@ def face_areas(V, F) -> np.ndarray:
 
 
 def vertex_normals(V, F) -> np.ndarray:
-    """Area-weighted unit vertex normals, ``(n, 3)`` float64 (zero at unreferenced vertices).
+    """Return area-weighted unit vertex normals (zero at unreferenced vertices).
 
     Parameters
     ----------
@@ -58,6 +67,11 @@ def vertex_normals(V, F) -> np.ndarray:
     Returns
     -------
     (n, 3) float64 numpy array
+
+    Examples
+    --------
+    >>> vertex_normals(np.eye(3), np.array([[0, 1, 2]])).round(4).tolist()[0]
+    [0.5774, 0.5774, 0.5774]
     """
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F)
@@ -69,14 +83,38 @@ def vertex_normals(V, F) -> np.ndarray:
 
 
 def edges(F) -> np.ndarray:
-    """Undirected edges ``(e, 2)`` int64, sorted rows, each edge once."""
+    """Return the undirected edges of a triangle mesh, each once.
+
+    Parameters
+    ----------
+    F : (m, 3) int numpy array
+
+    Returns
+    -------
+    (e, 2) int64 numpy array
+        Rows ``(a, b)`` with ``a < b``, sorted.
+
+    Examples
+    --------
+    >>> edges(np.array([[0, 1, 2], [0, 2, 3]])).tolist()
+    [[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]]
+    """
     F = np.asarray(F, dtype=np.int64)
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), 1)
     return np.unique(E, axis=0)
 
 
 def mean_edge_length(V, F) -> float:
-    """Mean length of the face edges (an edge shared by two faces counts twice).
+    """Return the mean length of the face edges (an edge shared by two faces counts twice).
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+    F : (m, 3) int numpy array
+
+    Returns
+    -------
+    float
 
     Examples
     --------
@@ -90,7 +128,14 @@ def mean_edge_length(V, F) -> float:
 
 
 def connected_components(n_vertices: int, F) -> tuple[int, np.ndarray]:
-    """Connected components of the vertices through the faces.
+    """Return the connected components of the vertices through the faces.
+
+    Parameters
+    ----------
+    n_vertices : int
+        Number of vertices ``n``.
+    F : (m, 3) int numpy array
+        Faces, indices in ``[0, n)``.
 
     Returns
     -------
@@ -98,6 +143,12 @@ def connected_components(n_vertices: int, F) -> tuple[int, np.ndarray]:
         Components, unreferenced vertices counted as their own.
     label : (n,) int numpy array
         Component of every vertex.
+
+    Examples
+    --------
+    >>> count, label = connected_components(7, np.array([[0, 1, 2], [3, 4, 5]]))
+    >>> count, label.tolist()
+    (3, [0, 0, 0, 1, 1, 1, 2])
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components as components
@@ -109,7 +160,27 @@ def connected_components(n_vertices: int, F) -> tuple[int, np.ndarray]:
 
 
 def largest_component(V, F) -> tuple[np.ndarray, np.ndarray]:
-    """The component with the most faces, unreferenced vertices dropped: ``(V, F)``."""
+    """Return the connected component with the most faces, without unreferenced vertices.
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+    F : (m, 3) int numpy array
+
+    Returns
+    -------
+    V : (n', 3) numpy array
+        Vertices of the component, in their original order.
+    F : (m', 3) int64 numpy array
+        Its faces, re-indexed into the returned ``V``.
+
+    Examples
+    --------
+    >>> V = np.arange(21.0).reshape(7, 3)
+    >>> V2, F2 = largest_component(V, np.array([[0, 1, 2], [4, 5, 6], [4, 6, 3]]))
+    >>> V2[:, 0].tolist(), F2.tolist()
+    ([9.0, 12.0, 15.0, 18.0], [[1, 2, 3], [1, 3, 0]])
+    """
     _, label = connected_components(len(V), F)
     face_label = label[F[:, 0]]
     F = F[face_label == np.argmax(np.bincount(face_label))]
@@ -125,6 +196,24 @@ def weld(V, F) -> tuple[np.ndarray, np.ndarray]:
     A triangle soup (three vertices per face) becomes an indexed mesh. Arrays
     that are not a valid triangle list are returned unchanged, so the caller's
     validation names the problem.
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+    F : (m, 3) int numpy array
+
+    Returns
+    -------
+    V : (n', 3) numpy array
+        Distinct vertices, sorted by coordinates (``numpy.unique`` order).
+    F : (m', 3) int numpy array
+        Faces re-indexed into them, those with a repeated vertex dropped.
+
+    Examples
+    --------
+    >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> weld(V, np.array([[0, 1, 2], [3, 5, 4]]))[1].tolist()
+    [[0, 2, 1], [2, 3, 1]]
     """
     V, F = np.asarray(V), np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or len(V) == 0 or F.size == 0 or F.min() < 0 or F.max() >= len(V):
@@ -138,7 +227,20 @@ def weld(V, F) -> tuple[np.ndarray, np.ndarray]:
 
 
 def euler_characteristic(n_vertices: int, F) -> tuple[int, int]:
-    """Euler characteristic ``V - E + F`` and the number of boundary edges.
+    """Return the Euler characteristic ``V - E + F`` and the number of boundary edges.
+
+    Parameters
+    ----------
+    n_vertices : int
+        Number of vertices ``V`` (unreferenced ones count).
+    F : (m, 3) int numpy array
+        Faces.
+
+    Returns
+    -------
+    chi : int
+    n_boundary : int
+        Edges with one incident face.
 
     Examples
     --------

@@ -25,14 +25,14 @@ def estimate_normals(P, k: int = 16):
 
     Parameters
     ----------
-    P : (N, 3) float NumPy array
+    P : (N, 3) float numpy array
         Points, ``N >= k + 1``.
     k : int
         Neighbours per point (3 to 200; 16 suits clean scans, larger for noise).
 
     Returns
     -------
-    N : (N, 3) float64 NumPy array
+    N : (N, 3) float64 numpy array
         Unit normals.
 
     Raises
@@ -45,6 +45,11 @@ def estimate_normals(P, k: int = 16):
     Orientation is only as good as the sampling: thin sheets closer than the
     neighbourhood size, or strongly non-uniform sampling, may flip patches.
 
+    Deterministic: the same points give the same normals bit for bit, whatever
+    the number of threads (nothing random; the k-d tree queries are
+    independent per point, the spanning tree and the traversal orders are
+    fixed functions of the graph).
+
     Examples
     --------
     >>> import numpy as np
@@ -55,7 +60,11 @@ def estimate_normals(P, k: int = 16):
     True
     """
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.sparse.csgraph import (
+        breadth_first_order,
+        connected_components,
+        minimum_spanning_tree,
+    )
     from scipy.spatial import cKDTree
 
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= k <= 200:
@@ -63,7 +72,8 @@ def estimate_normals(P, k: int = 16):
     P = check_points(P, "estimate_normals")
     if len(P) < k + 1:
         fail("estimate_normals", f"at least k + 1 = {k + 1} points", f"{len(P)}")
-    _, nbr = cKDTree(P).query(P, k=k + 1)                # (N, k+1), self first
+    # Parallel queries are independent: the result does not depend on the thread count.
+    _, nbr = cKDTree(P).query(P, k=k + 1, workers=-1)    # (N, k+1), self first
     Q = P[nbr] - P[nbr].mean(1, keepdims=True)
     _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))
     Nrm = vecs[:, :, 0]                                    # smallest eigenvalue's eigenvector

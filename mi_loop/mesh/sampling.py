@@ -60,22 +60,22 @@ def closest_points(V, F, Q, chunk: int = 8192):
 
     Parameters
     ----------
-    V : (n, 3) float NumPy array
+    V : (n, 3) float numpy array
         Mesh vertices.
-    F : (m, 3) int NumPy array
+    F : (m, 3) int numpy array
         Triangles (any orientation; degenerate ones are treated as segments).
-    Q : (k, 3) float NumPy array
+    Q : (k, 3) float numpy array
         Query points.
     chunk : int
         Queries per batch (bounds memory).
 
     Returns
     -------
-    dist : (k,) float64 NumPy array
+    dist : (k,) float64 numpy array
         Euclidean distances.
-    C : (k, 3) float64 NumPy array
+    C : (k, 3) float64 numpy array
         Closest points.
-    face : (k,) int64 NumPy array
+    face : (k,) int64 numpy array
         Triangle of each closest point.
 
     Examples
@@ -119,7 +119,32 @@ def closest_points(V, F, Q, chunk: int = 8192):
 
 
 def surface_distances(V, F, points):
-    """Exact distances from points to a triangle mesh, ``(k,)`` float64 (see :func:`closest_points`)."""
+    """Return the exact distances from points to a triangle mesh (see :func:`closest_points`).
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+        Mesh vertices.
+    F : (m, 3) int numpy array
+        Triangles.
+    points : (k, 3) float numpy array
+        Query points.
+
+    Returns
+    -------
+    (k,) float64 numpy array
+
+    Raises
+    ------
+    ValueError
+        As :func:`closest_points`.
+
+    Examples
+    --------
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); F = np.array([[0, 1, 2]])
+    >>> surface_distances(V, F, np.array([[0.2, 0.2, -2.0]])).tolist()
+    [2.0]
+    """
     return closest_points(V, F, points)[0]
 
 
@@ -128,8 +153,8 @@ def sample_surface(V, F, n: int, seed: int = 0):
 
     Parameters
     ----------
-    V : (n_v, 3) float NumPy array
-    F : (m, 3) int NumPy array
+    V : (n_v, 3) float numpy array
+    F : (m, 3) int numpy array
         Triangles; zero-area ones are never drawn.
     n : int
         Number of samples.
@@ -138,11 +163,11 @@ def sample_surface(V, F, n: int, seed: int = 0):
 
     Returns
     -------
-    P : (n, 3) float64 NumPy array
+    P : (n, 3) float64 numpy array
         Samples.
-    N : (n, 3) float64 NumPy array
+    N : (n, 3) float64 numpy array
         Unit normals of the faces they lie on (right-hand rule on ``F``).
-    face : (n,) int64 NumPy array
+    face : (n,) int64 numpy array
         Face of every sample.
 
     Raises

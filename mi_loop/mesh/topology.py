@@ -1,137 +1,60 @@
-"""Triangle-mesh topology in NumPy: edges, half-edge look-ups, validation, creases.
+"""Validation of Loop control meshes and crease arguments (NumPy).
 
-Everything here is connectivity only; no vertex positions except in
-:func:`validate_mesh`, which also checks coordinates.
+Connectivity only, except :func:`validate_mesh`, which also checks the
+coordinates. Every rejected input raises :class:`ValueError` with a message
+``function(): expected ..., got ...`` that names the offending face, edge,
+vertex or crease. The adjacency structure of a validated mesh is
+:class:`mi_loop.mesh.halfedge.Topology`.
 """
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
+from mi_loop.errors import fail
 
-def _fail(func: str, message: str):
-    where = f"{func}()" if func.isidentifier() or "." in func and func.replace(".", "").isidentifier() else func
-    raise ValueError(f"{where}: {message}")
-
-
-@dataclass
-class Topology:
-    """Connectivity of a manifold, consistently oriented triangle mesh.
-
-    Attributes
-    ----------
-    F : (m, 3) int64 numpy array
-        Faces.
-    n : int
-        Number of vertices.
-    E : (e, 2) int64 numpy array
-        Undirected edges, ``E[:, 0] < E[:, 1]``.
-    face_edge : (m, 3) int64 numpy array
-        Edge id of face edge ``(F[f, c], F[f, (c + 1) % 3])``.
-    sharpness : (e,) float64 numpy array
-        Crease sharpness per edge (0 smooth, ``inf`` infinitely sharp);
-        boundary edges are ``inf``.
-    boundary : (e,) bool numpy array
-        Edge has one incident face.
-    """
-
-    F: np.ndarray
-    n: int
-    E: np.ndarray
-    face_edge: np.ndarray
-    sharpness: np.ndarray
-    boundary: np.ndarray
-
-    @classmethod
-    def build(cls, F: np.ndarray, n: int, sharpness_of=None) -> "Topology":
-        """Build from faces; ``sharpness_of`` is ``(E_c (c,2), s (c,))`` or None."""
-        F = np.asarray(F, dtype=np.int64)
-        a = F.ravel()
-        b = F[:, [1, 2, 0]].ravel()
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        keys = lo * n + hi
-        uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        E = np.stack([uniq // n, uniq % n], axis=1)
-        sharp = np.zeros(len(E))
-        boundary = counts == 1
-        sharp[boundary] = np.inf
-        if sharpness_of is not None:
-            Ec, sc = sharpness_of
-            idx = np.searchsorted(uniq, np.minimum(Ec[:, 0], Ec[:, 1]) * n
-                                  + np.maximum(Ec[:, 0], Ec[:, 1]))
-            sharp[idx] = np.maximum(sharp[idx], sc)
-        # Directed half-edge table for look-ups (v -> w) -> face, corner.
-        he_keys = a * n + b
-        order = np.argsort(he_keys)
-        topo = cls(F, int(n), E, inverse.reshape(-1, 3), sharp, boundary)
-        topo._he_sorted = he_keys[order]
-        topo._he_index = order  # flat index f * 3 + c
-        return topo
-
-    # -- look-ups ---------------------------------------------------------
-    def half_edge(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Flat corner index ``3 f + c`` of directed edge ``v -> w`` (``F[f, c] = v``), or -1."""
-        v = np.asarray(v, dtype=np.int64)
-        w = np.asarray(w, dtype=np.int64)
-        valid = (v >= 0) & (w >= 0)
-        key = np.where(valid, v * self.n + w, -1)
-        pos = np.searchsorted(self._he_sorted, key)
-        pos = np.minimum(pos, len(self._he_sorted) - 1)
-        found = valid & (self._he_sorted[pos] == key)
-        return np.where(found, self._he_index[pos], -1)
-
-    def edge_id(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Undirected edge id of ``v - w`` (assumed to exist)."""
-        c = self.half_edge(v, w)
-        c = np.where(c < 0, self.half_edge(w, v), c)
-        return self.face_edge.ravel()[c]
-
-    def edge_sharp(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Whether edge ``v - w`` is sharp (boundary or crease with s > 0)."""
-        return self.sharpness[self.edge_id(v, w)] > 0
-
-    def next_ccw(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Neighbour of ``v`` following ``w`` counter-clockwise (through face ``v, w, x``), or -1."""
-        c = self.half_edge(v, w)
-        f, k = np.divmod(np.maximum(c, 0), 3)
-        return np.where(c >= 0, self.F[f, (k + 2) % 3], -1)
-
-    def next_cw(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Neighbour of ``v`` following ``w`` clockwise (through face ``w, v, y``), or -1."""
-        c = self.half_edge(w, v)
-        f, k = np.divmod(np.maximum(c, 0), 3)
-        return np.where(c >= 0, self.F[f, (k + 2) % 3], -1)
-
-    # -- per-vertex quantities -----------------------------------------------
-    def valence(self) -> np.ndarray:
-        """Number of incident edges per vertex, ``(n,)`` int."""
-        return np.bincount(self.E.ravel(), minlength=self.n)
-
-    def face_count(self) -> np.ndarray:
-        """Number of incident faces per vertex, ``(n,)`` int."""
-        return np.bincount(self.F.ravel(), minlength=self.n)
-
-    def sharp_count(self) -> np.ndarray:
-        """Number of incident sharp edges (boundary included) per vertex."""
-        s = self.E[self.sharpness > 0].ravel()
-        return np.bincount(s, minlength=self.n)
-
-    def vertex_kind(self) -> np.ndarray:
-        """Subdivision rule per vertex: 0 smooth (incl. dart), 1 crease, 2 corner."""
-        sc = self.sharp_count()
-        on_boundary = np.bincount(self.E[self.boundary].ravel(), minlength=self.n) > 0
-        kind = np.where(sc >= 3, 2, np.where(sc == 2, 1, 0))
-        kind[on_boundary & (self.face_count() == 1)] = 2
-        return kind
+__all__ = ["check_creases", "validate_faces", "validate_mesh"]
 
 
 def check_creases(creases, F: np.ndarray, n: int, func: str):
-    """Normalise the ``creases`` argument to ``(E (c,2) int64, s (c,) float64)`` or None.
+    """Normalise a ``creases`` argument to ``(E (c, 2) int64, s (c,) float64)`` or None.
 
-    Accepted forms: None; an int array ``(c, 2)`` of vertex pairs (infinitely
-    sharp); a tuple ``(E, sharpness)`` with positive integer or ``inf`` sharpness.
+    Parameters
+    ----------
+    creases : None, (c, 2) int array_like, or tuple ``(E, sharpness)``
+        None; vertex pairs of infinitely sharp edges; or pairs with one
+        sharpness each, a positive integer up to 4 or ``inf``.
+    F : (m, 3) int64 numpy array
+        Faces of the mesh, already validated.
+    n : int
+        Number of vertices.
+    func : str
+        Name of the calling public function, for the message.
+
+    Returns
+    -------
+    tuple ``(E (c, 2) int64 numpy array, s (c,) float64 numpy array)`` or None
+        None when there are no creases.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, a sharpness count that differs from the edge
+        count, a sharpness that is not a positive integer (at most 4) or
+        ``inf``, a pair that is not an edge of the mesh; the first offending
+        crease is named.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3]])
+    >>> E, s = check_creases(np.array([[2, 0]]), F, 4, "f")
+    >>> E.tolist(), s.tolist()
+    ([[2, 0]], [inf])
+    >>> check_creases(np.array([[1, 3]]), F, 4, "f")
+    Traceback (most recent call last):
+    ...
+    ValueError: f(): expected crease edges that are edges of the mesh, got crease 0 = [1, 3]
     """
     if creases is None:
         return None
@@ -143,62 +66,119 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     if E.size == 0:
         return None
     if E.ndim != 2 or E.shape[1] != 2 or not np.issubdtype(E.dtype, np.integer):
-        _fail(func, f"creases must be an integer array of shape (c, 2), got {E.dtype} array of shape {E.shape}")
+        fail(func, "creases as an integer array of shape (c, 2)", f"{E.dtype} array of shape {E.shape}")
     E = E.astype(np.int64)
     s = np.full(len(E), np.inf) if s is None else np.asarray(s, dtype=np.float64).reshape(-1)
     if len(s) != len(E):
-        _fail(func, f"got {len(E)} crease edges but {len(s)} sharpness values")
+        fail(func, f"one sharpness per crease edge ({len(E)})", f"{len(s)} sharpness values")
     bad = np.flatnonzero(~(s > 0) | (np.isfinite(s) & (s != np.round(s))))
     if len(bad):
-        _fail(func, f"crease {bad[0]} has sharpness {s[bad[0]]}; expected a positive integer or inf")
+        fail(func, "crease sharpness a positive integer or inf", f"sharpness {s[bad[0]]} at crease {bad[0]}")
     bad = np.flatnonzero(np.isfinite(s) & (s > 4))
     if len(bad):
-        _fail(func, f"crease {bad[0]} has sharpness {s[bad[0]]:g}; finite sharpness above 4 is not supported (use inf)")
+        fail(func, "finite crease sharpness at most 4 (use inf for sharper)",
+             f"sharpness {s[bad[0]]:g} at crease {bad[0]}")
     bad = np.flatnonzero((E < 0).any(1) | (E >= n).any(1) | (E[:, 0] == E[:, 1]))
     if len(bad):
-        _fail(func, f"crease {bad[0]} = {E[bad[0]].tolist()} is not a pair of distinct vertex indices in [0, {n})")
+        fail(func, f"creases as pairs of distinct vertex indices in [0, {n})", f"crease {bad[0]} = {E[bad[0]].tolist()}")
     keys = np.unique(np.sort(np.stack([F.ravel(), F[:, [1, 2, 0]].ravel()], 1), 1) @ [n, 1])
     ck = np.sort(E, 1) @ [n, 1]
     bad = np.flatnonzero(~np.isin(ck, keys))
     if len(bad):
-        _fail(func, f"crease {bad[0]} = {E[bad[0]].tolist()} is not an edge of the mesh")
+        fail(func, "crease edges that are edges of the mesh", f"crease {bad[0]} = {E[bad[0]].tolist()}")
     return E, s
 
 
 def validate_faces(F, n_vertices: int, func: str = "validate_mesh") -> np.ndarray:
-    """Check connectivity; return faces as int64. Raises ValueError naming the problem."""
+    """Check the connectivity of a Loop control mesh and return its faces as int64.
+
+    Parameters
+    ----------
+    F : (m, 3) int array_like
+        Triangles (float arrays of whole numbers are accepted).
+    n_vertices : int
+        Number of vertices ``n``.
+    func : str, optional
+        Name of the calling public function (or CLI option), for the message.
+
+    Returns
+    -------
+    (m, 3) int64 numpy array
+
+    Raises
+    ------
+    ValueError
+        No faces or vertices, non-triangles, non-integer indices, an index
+        outside ``[0, n)``, a degenerate face, a non-manifold edge (three or
+        more faces) or vertex (several fans), inconsistent orientation, or two
+        faces on the same three vertices (see Notes); the message names the
+        first offending face, edge or vertex.
+
+    Notes
+    -----
+    Two faces on the same three vertices form a closed two-triangle component
+    (``[[0, 1, 2], [0, 2, 1]]``). Its limit surface is degenerate (flat and
+    covered twice: the only control points are the three vertices, and
+    swapping the two faces maps the surface onto itself), and its refinement
+    has two distinct edges between the same two vertices at every level
+    (around the valence-2 vertices), which no vertex-indexed mesh can hold;
+    it is refused rather than evaluated wrongly.
+
+    Examples
+    --------
+    >>> validate_faces([[0, 1, 2], [0, 2, 3]], 4).dtype
+    dtype('int64')
+    >>> validate_faces([[0, 1, 2], [0, 1, 3]], 4)
+    Traceback (most recent call last):
+    ...
+    ValueError: validate_mesh(): expected consistently oriented faces (each directed edge in one face), got edge (0, 1) used in the same direction by faces 0 and 1
+    """
     F = np.asarray(F)
-    if F.size == 0:
-        _fail(func, "the mesh has no faces")
-    if F.ndim != 2 or F.shape[1] != 3:
-        _fail(func, f"faces must have shape (m, 3) (triangles only), got {F.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+        fail(func, "faces of shape (m, 3) with m > 0 (triangles only)", f"shape {F.shape}")
     if not np.issubdtype(F.dtype, np.integer):
-        if np.issubdtype(F.dtype, np.floating) and np.all(F == np.round(F)):
-            F = F.astype(np.int64)
-        else:
-            _fail(func, f"face indices must be integers, got dtype {F.dtype}")
+        whole = np.issubdtype(F.dtype, np.floating) and np.isfinite(F).all() and np.all(F == np.round(F))
+        if not whole:
+            bad = np.flatnonzero(~(F == np.round(F)).all(1)) if np.issubdtype(F.dtype, np.number) else [0]
+            fail(func, "integer face indices", f"dtype {F.dtype}, face {bad[0]} = {F[bad[0]].tolist()}")
     F = F.astype(np.int64)
     n = int(n_vertices)
     if n <= 0:
-        _fail(func, "the mesh has no vertices")
+        fail(func, "a mesh with vertices", f"n_vertices = {n}")
     bad = np.flatnonzero((F < 0).any(1) | (F >= n).any(1))
     if len(bad):
-        _fail(func, f"face {bad[0]} = {F[bad[0]].tolist()} has an index outside [0, {n})")
+        fail(func, f"face indices in [0, {n})", f"face {bad[0]} = {F[bad[0]].tolist()}")
     bad = np.flatnonzero((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0]))
     if len(bad):
-        _fail(func, f"face {bad[0]} = {F[bad[0]].tolist()} is degenerate (repeated vertex)")
+        fail(func, "faces with three distinct vertices", f"face {bad[0]} = {F[bad[0]].tolist()} (degenerate)")
+    _check_edges(F, n, func)
+    _check_vertex_fans(F, n, func)
+    _check_double_faces(F, n, func)
+    return F
+
+
+def _faces_on_edge(F: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Faces that contain both ``a`` and ``b``."""
+    return np.flatnonzero((F == a).any(1) & (F == b).any(1))
+
+
+def _check_edges(F: np.ndarray, n: int, func: str):
+    """At most two faces per edge (manifold), each directed edge in one face (oriented)."""
     a, b = F.ravel(), F[:, [1, 2, 0]].ravel()
-    directed, counts = np.unique(a * n + b, return_counts=True)
-    if (counts > 1).any():
-        k = directed[np.argmax(counts > 1)]
-        _fail(func, f"edge ({k // n}, {k % n}) is used twice in the same direction: "
-                    "faces are inconsistently oriented or the edge is non-manifold")
     und, ucounts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_counts=True)
     if (ucounts > 2).any():
         k = und[np.argmax(ucounts > 2)]
-        _fail(func, f"edge ({k // n}, {k % n}) is non-manifold (shared by more than two faces)")
-    _check_vertex_fans(F, n, func)
-    return F
+        faces = _faces_on_edge(F, k // n, k % n)
+        fail(func, "a manifold mesh (at most two faces per edge)",
+             f"non-manifold edge ({k // n}, {k % n}) shared by {len(faces)} faces "
+             f"({', '.join(map(str, faces[:6]))}{', ...' if len(faces) > 6 else ''})")
+    directed, counts = np.unique(a * n + b, return_counts=True)
+    if (counts > 1).any():
+        k = directed[np.argmax(counts > 1)]
+        v, w = k // n, k % n
+        faces = [f for f in _faces_on_edge(F, v, w) if any(F[f, c] == v and F[f, (c + 1) % 3] == w for c in range(3))]
+        fail(func, "consistently oriented faces (each directed edge in one face)",
+             f"edge ({v}, {w}) used in the same direction by faces {faces[0]} and {faces[1]}")
 
 
 def _check_vertex_fans(F: np.ndarray, n: int, func: str):
@@ -229,7 +209,22 @@ def _check_vertex_fans(F: np.ndarray, n: int, func: str):
     per_vertex = np.bincount(fans[:, 0], minlength=n)
     bad = np.flatnonzero(per_vertex > 1)
     if len(bad):
-        _fail(func, f"vertex {bad[0]} is non-manifold (its faces form {per_vertex[bad[0]]} separate fans)")
+        fail(func, "a manifold mesh (the faces around each vertex form one fan)",
+             f"non-manifold vertex {bad[0]}, whose faces form {per_vertex[bad[0]]} separate fans")
+
+
+def _check_double_faces(F: np.ndarray, n: int, func: str):
+    """No two faces on the same three vertices (see :func:`validate_faces`, Notes)."""
+    S = np.sort(F, axis=1)
+    key = (S[:, 0] * n + S[:, 1]) * n + S[:, 2]
+    order = np.argsort(key, kind="stable")
+    same = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if len(same):
+        f, g = sorted(order[[same[0], same[0] + 1]])
+        fail(func, "no two faces on the same three vertices",
+             f"faces {f} = {F[f].tolist()} and {g} = {F[g].tolist()}: a closed two-triangle component, "
+             "whose limit surface is flat and doubly covered and whose refinement has double edges; "
+             "remove it")
 
 
 def validate_mesh(V, F, func: str = "validate_mesh"):
@@ -237,10 +232,12 @@ def validate_mesh(V, F, func: str = "validate_mesh"):
 
     Parameters
     ----------
-    V : (n, 3) float numpy array
+    V : (n, 3) float array_like
         Vertex positions.
-    F : (m, 3) int numpy array
+    F : (m, 3) int array_like
         Triangle faces, consistently oriented, manifold (boundaries allowed).
+    func : str, optional
+        Name of the calling public function (or CLI option), for the message.
 
     Returns
     -------
@@ -256,30 +253,41 @@ def validate_mesh(V, F, func: str = "validate_mesh"):
     ValueError
         Empty mesh, non-triangle faces, out-of-range or negative indices,
         NaN/Inf coordinates, degenerate faces, non-manifold edges or vertices,
-        inconsistent orientation; the message names the offending element.
+        inconsistent orientation, two faces on the same three vertices (see
+        :func:`validate_faces`); the message names the offending element.
 
     Warns
     -----
     UserWarning
         When unreferenced vertices are dropped (says how many).
+
+    Examples
+    --------
+    >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    >>> V2, F2, kept = validate_mesh(V, [[0, 1, 2]])
+    >>> F2.tolist(), kept.tolist()
+    ([[0, 1, 2]], [0, 1, 2])
+    >>> validate_mesh(V, [[0, 1, 2], [0, 2, 1]])
+    Traceback (most recent call last):
+    ...
+    ValueError: validate_mesh(): expected no two faces on the same three vertices, got faces 0 = [0, 1, 2] and 1 = [0, 2, 1]: a closed two-triangle component, whose limit surface is flat and doubly covered and whose refinement has double edges; remove it
     """
     V = np.asarray(V)
-    if V.size == 0:
-        _fail(func, "the mesh has no vertices")
-    if V.ndim != 2 or V.shape[1] != 3:
-        _fail(func, f"vertices must have shape (n, 3), got {V.shape}")
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        fail(func, "vertices of shape (n, 3) with n > 0", f"shape {V.shape}")
     if not np.issubdtype(V.dtype, np.number):
-        _fail(func, f"vertex coordinates must be numbers, got dtype {V.dtype}")
+        fail(func, "numeric vertex coordinates", f"dtype {V.dtype}")
     V = V.astype(np.float64)
     bad = np.flatnonzero(~np.isfinite(V).all(1))
     if len(bad):
-        _fail(func, f"vertex {bad[0]} has a non-finite coordinate {V[bad[0]].tolist()}")
+        fail(func, "finite vertex coordinates", f"vertex {bad[0]} = {V[bad[0]].tolist()} ({len(bad)} such vertices)")
     F = validate_faces(F, len(V), func)
     used = np.zeros(len(V), bool)
     used[F.ravel()] = True
     kept = np.flatnonzero(used)
     if len(kept) < len(V):
-        warnings.warn(f"{func}(): dropped {len(V) - len(kept)} unreferenced vertices", stacklevel=2)
+        head = func if func.endswith(")") or " " in func else f"{func}()"
+        warnings.warn(f"{head}: dropped {len(V) - len(kept)} unreferenced vertices", stacklevel=2)
         remap = np.full(len(V), -1, dtype=np.int64)
         remap[kept] = np.arange(len(kept))
         V, F = V[kept], remap[F]

@@ -5,3 +5,5 @@
 - :mod:`~mi_loop.render.scene`: cameras framing a box, lights, single renders;
 - :mod:`~mi_loop.render.multiview`: a camera rig and the differentiable image loss.
 """
+
+__all__: list = []

@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from mi_loop.errors import fail
+
+__all__ = ["LATTICE", "box_basis"]
+
 #: Axial lattice coordinates of the 12 patch points (Stam's order 1..12).
 LATTICE = np.array([(0, -1), (-1, 0), (1, -1), (0, 0), (-1, 1), (2, -1),
                     (1, 0), (0, 1), (-1, 2), (2, 0), (1, 1), (0, 2)])
@@ -90,6 +94,19 @@ def box_basis(uv: np.ndarray, derivative: str | None = None) -> np.ndarray:
     Returns
     -------
     (k, 12) float64 numpy array
+
+    Raises
+    ------
+    ValueError
+        For another ``derivative``.
+
+    Examples
+    --------
+    >>> uv = np.array([[0.2, 0.3], [0.0, 0.0]])
+    >>> np.round(box_basis(uv).sum(1), 12).tolist()      # a partition of unity
+    [1.0, 1.0]
+    >>> bool(np.abs(box_basis(uv, "u").sum(1)).max() < 1e-12)
+    True
     """
     u, v = uv[:, 0], uv[:, 1]
     wa = 1.0 - u - v
@@ -100,4 +117,4 @@ def box_basis(uv: np.ndarray, derivative: str | None = None) -> np.ndarray:
         return (_DU.T @ _monomials(wa, u, v, 3)).T
     if derivative == "v":
         return (_DV.T @ _monomials(wa, u, v, 3)).T
-    raise ValueError(f"box_basis(): derivative must be None, 'u' or 'v', got {derivative!r}")
+    fail("box_basis", "derivative None, 'u' or 'v'", repr(derivative))

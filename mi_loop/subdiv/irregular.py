@@ -24,12 +24,22 @@ import numpy as np
 from mi_loop.subdiv.boxspline import box_basis
 from mi_loop.subdiv.patches import irregular_points, phantom_matrices, stam_points
 
+__all__ = ["MAX_DEPTH", "LocalMatrices", "build_local"]
+
 #: Depth below which a point is taken as the vertex itself (2^-60 ~ 1e-18).
 MAX_DEPTH = 60
 
 
 class LocalMatrices:
     """Matrices of one local configuration (signature).
+
+    Parameters
+    ----------
+    A : (K, K) float64 numpy array
+        One Loop step on the ``K`` patch points: ``P(g') = A P(g)``.
+    E : (3, 12, K) float64 numpy array
+        The 12 box-spline points of the three regular children (corner
+        ``r_i``, corner ``r_j``, middle), phantom points included.
 
     Attributes
     ----------
@@ -85,7 +95,34 @@ def _tangent_pair(r_s: np.ndarray, r_t: np.ndarray, B: np.ndarray, steps: int = 
 
 
 def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
-    """Build :class:`LocalMatrices` at face ``g`` (rotated so ``v = F[g, rot]``)."""
+    """Build the :class:`LocalMatrices` of face ``g``, rotated so that ``v = F[g, rot]``.
+
+    Parameters
+    ----------
+    topo : Topology
+        Connectivity of the level that holds face ``g``.
+    fine_topo : Topology
+        Connectivity of the next level.
+    S_next : scipy.sparse.csr_matrix, shape ``(fine_topo.n, topo.n)``
+        The subdivision step between them.
+    g : int
+        A face with exactly one irregular corner.
+    rot : int
+        Which corner of ``g`` (0, 1 or 2) is irregular.
+    max_valence : int
+        Largest valence in ``topo``.
+
+    Returns
+    -------
+    LocalMatrices
+
+    Raises
+    ------
+    RuntimeError
+        If the corner child's patch does not repeat the parent's (an internal
+        error: never for a mesh that :func:`~mi_loop.mesh.topology.validate_faces`
+        accepts).
+    """
     n = topo.n
     f = topo.F[g]
     v, ri, rj = f[rot], f[(rot + 1) % 3], f[(rot + 2) % 3]
@@ -98,7 +135,7 @@ def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
     Pc = irregular_points(fine_topo, np.array([v]), np.array([m_vi]), np.array([m_jv]),
                           max_valence)[0]
     if not np.array_equal(Pc >= 0, P >= 0):
-        raise RuntimeError("build_local(): corner child is not self-similar")
+        raise RuntimeError(f"build_local(): internal error: the corner child of face {g} is not self-similar")
     col = {int(p): i for i, p in enumerate(present)}
     A = _rows(S_next, Pc[Pc >= 0], col)
     kids = [(m_vi, ri, m_ij), (m_jv, m_ij, rj), (m_ij, m_jv, m_vi)]  # corner ri, corner rj, middle
@@ -119,6 +156,6 @@ def _rows(S, idx, col):
     out = np.zeros((len(idx), len(col)))
     for r, c, x in zip(sub.row, sub.col, sub.data):
         if int(c) not in col:
-            raise RuntimeError("build_local(): subdivision row leaves the patch")
+            raise RuntimeError("build_local(): internal error: a subdivision row leaves the patch")
         out[r, col[int(c)]] += x
     return out

@@ -1,27 +1,26 @@
 """Exact Loop limit evaluation at arbitrary ``(face, u, v)`` as sparse rows (NumPy/SciPy).
 
-The control mesh is subdivided ``L`` times (once, or until semi-sharp creases
-have expired) so that every face has at most one irregular corner. Regular
-faces are quartic box-spline patches (with phantom points along creases and
-boundaries); faces with an irregular corner use :mod:`mi_loop.subdiv.irregular`.
-Rows are kept factored as ``W_L @ S_L``: ``W_L`` (padded, on the level-``L``
-vertices) times the composed subdivision matrix ``S_L``.
+On the :class:`~mi_loop.subdiv.hierarchy.Hierarchy` (the control mesh refined
+until every face has at most one irregular corner), regular faces are quartic
+box-spline patches (with phantom points along creases and boundaries); faces
+with an irregular corner use :mod:`mi_loop.subdiv.irregular`. Rows are kept
+factored as ``W_L @ S_L``: ``W_L`` (padded, on the level-``L`` vertices) times
+the composed subdivision matrix ``S_L``.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
+from mi_loop.errors import fail
 from mi_loop.subdiv.boxspline import box_basis
-from mi_loop.subdiv.irregular import MAX_DEPTH, build_local
-from mi_loop.subdiv.patches import corner_regular, irregular_points, phantom_matrices, stam_points
-from mi_loop.subdiv.subdivision import subdivide_topology
-from mi_loop.mesh.topology import Topology, check_creases, validate_faces
+from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
+from mi_loop.subdiv.irregular import MAX_DEPTH
+
+__all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr"]
 
 
-def descend(uv: np.ndarray):
+def _descend(uv: np.ndarray):
     """Child index and child parameters of points ``uv`` (k, 2) in a parent face."""
     u, v = uv[:, 0], uv[:, 1]
     child = np.where(u >= 0.5, 1, np.where(v >= 0.5, 2, np.where(u + v <= 0.5, 0, 3)))
@@ -30,99 +29,12 @@ def descend(uv: np.ndarray):
     return child, np.clip(np.stack([uc, vc], 1), 0.0, 1.0)
 
 
-@dataclass
-class Hierarchy:
-    """Control mesh refined until every face has one irregular corner at most.
-
-    Per-face patch tables at the finest level are built once: regular faces
-    keep their 12 box-spline points and phantom pattern, irregular faces their
-    rotation, local-configuration id and patch points.
-    """
-
-    levels: list          # Topology per level 0..L
-    S: list               # S[l] maps level l -> l + 1
-    max_valence: int
-
-    def __post_init__(self):
-        topo = self.top
-        F = topo.F
-        kind = topo.vertex_kind()
-        val = topo.valence()
-        reg = np.stack([corner_regular(topo, kind, val, F[:, c], F[:, (c + 1) % 3])
-                        for c in range(3)], 1)
-        n_irr = (~reg).sum(1)
-        if (n_irr > 1).any():
-            raise RuntimeError("Hierarchy: a face has two irregular corners after subdivision")
-        self.irr_corner = np.where(n_irr == 0, -1, np.argmax(~reg, axis=1))
-        m = len(F)
-        self.reg_P = np.zeros((m, 12), dtype=np.int64)
-        self.reg_pid = np.zeros(m, dtype=np.int64)
-        r = np.flatnonzero(self.irr_corner < 0)
-        P = stam_points(topo, F[r, 0], F[r, 1], F[r, 2])
-        self.reg_pid[r], self.Phis = phantom_matrices(P)
-        self.reg_P[r] = np.maximum(P, 0)
-        self._irregular_tables(kind)
-
-    def _irregular_tables(self, kind):
-        topo, mv = self.top, self.max_valence
-        g = np.flatnonzero(self.irr_corner >= 0)
-        rot = self.irr_corner[g]
-        F = topo.F[g]
-        r = np.arange(len(g))
-        v, ri, rj = F[r, rot], F[r, (rot + 1) % 3], F[r, (rot + 2) % 3]
-        P = irregular_points(topo, v, ri, rj, mv)
-        ok = P >= 0
-        sector = ok.copy()
-        sector[:, 0] = False
-        sector[:, 1 + 2 * mv:] = False
-        sharp = np.zeros_like(ok)
-        sharp[sector] = topo.edge_sharp(np.broadcast_to(v[:, None], P.shape)[sector], P[sector])
-        sig_arr = np.concatenate([ok, sharp, kind[v][:, None] == np.arange(3)], 1)
-        _, first, sig = np.unique(np.packbits(sig_arr, axis=1), axis=0,
-                                  return_index=True, return_inverse=True)
-        self.irr_sig = np.full(len(topo.F), -1, dtype=np.int64)
-        self.irr_sig[g] = sig
-        order = np.argsort(~ok, axis=1, kind="stable")  # present slots first, in order
-        self.irr_P = np.zeros((len(topo.F), P.shape[1]), dtype=np.int64)
-        self.irr_P[g] = np.maximum(np.take_along_axis(P, order, 1), 0)
-        self.locals = []
-        if len(g):
-            S_next, fine = subdivide_topology(topo)
-            self.locals = [build_local(topo, fine, S_next, g[i], rot[i], mv) for i in first]
-
-    @property
-    def top(self) -> Topology:
-        return self.levels[-1]
-
-    def composed(self) -> sp.csr_matrix:
-        """``S_L = S[L-1] @ ... @ S[0]`` of shape ``(n_L, n_0)``."""
-        M = self.S[0]
-        for S in self.S[1:]:
-            M = S @ M
-        return M.tocsr()
-
-
-def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarchy:
-    """Validate and refine the control mesh (see :class:`Hierarchy`)."""
-    F = validate_faces(F, n_vertices, func)
-    cr = check_creases(creases, F, int(n_vertices), func)
-    topo = Topology.build(F, int(n_vertices), cr)
-    finite = topo.sharpness[np.isfinite(topo.sharpness)]
-    n_levels = max(1, int(finite.max()) if len(finite) else 1)
-    levels, Ss = [topo], []
-    for _ in range(n_levels):
-        S, topo = subdivide_topology(topo)
-        Ss.append(S)
-        levels.append(topo)
-    return Hierarchy(levels, Ss, int(topo.valence().max()))
-
-
-def map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
-    """Face and parameters at level L of control-face points; derivative factor."""
+def _map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
+    """Face and parameters at level L of control-face points, and the derivative factor."""
     f = face_ids.astype(np.int64)
     sign = np.ones(len(f))
     for _ in range(len(h.S)):
-        child, uv = descend(uv)
+        child, uv = _descend(uv)
         f = 4 * f + child
         sign = np.where(child == 3, -sign, sign)
     return f, uv, sign * 2.0 ** len(h.S)
@@ -196,12 +108,35 @@ def _irregular_rows(h, faces, uv, derivative):
 
 
 def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
-    """Padded rows ``[(idx (k, w), W (k, w)), ...]`` over level-L vertices, one per derivative.
+    """Return padded limit rows over the level-``L`` vertices, one pair per derivative.
 
-    The index array does not depend on the derivative and is shared by all
-    returned pairs.
+    Parameters
+    ----------
+    h : Hierarchy
+        From :func:`build_hierarchy`.
+    face_ids : (k,) int64 numpy array
+        Control face of every sample (checked by :func:`check_samples`).
+    uv : (k, 2) float64 numpy array
+        Parameters in the control faces (checked by :func:`check_samples`).
+    derivatives : tuple of None, 'u', 'v'
+        Which rows to return: the limit point (None) or a parametric derivative.
+
+    Returns
+    -------
+    list of tuples ``(idx (k, w) int32 numpy array, W (k, w) float64 numpy array)``
+        One pair per entry of ``derivatives``; row ``i`` of the limit matrix
+        over level ``L`` is ``sum_j W[i, j] e_{idx[i, j]}``. The index array
+        does not depend on the derivative and is the same object in every pair.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> h = build_hierarchy(F, 4)
+    >>> (idx, W), = level_rows(h, np.array([0]), np.array([[0.25, 0.25]]))
+    >>> idx.shape == W.shape, round(float(W.sum()), 12)
+    (True, 1.0)
     """
-    faces, uvL, sign = map_to_level(h, face_ids, uv)
+    faces, uvL, sign = _map_to_level(h, face_ids, uv)
     reg = h.irr_corner[faces] < 0
     ri, ii = np.flatnonzero(reg), np.flatnonzero(~reg)
     if len(ii) == 0:
@@ -253,23 +188,31 @@ def check_samples(face_ids, uv, m, func):
     Raises
     ------
     ValueError
-        Bad shapes or dtype, a face id out of range, ``uv`` outside the triangle.
+        Bad shapes or dtype, a face id out of range, ``uv`` outside the
+        triangle; the first offending sample is named.
+
+    Examples
+    --------
+    >>> check_samples([0, 1], [[0.5, 0.5 + 1e-13], [0.0, 0.0]], 2, "f")[1].sum(1).tolist()
+    [1.0, 0.0]
+    >>> check_samples([0, 2], [[0.2, 0.2], [0.2, 0.2]], 2, "f")
+    Traceback (most recent call last):
+    ...
+    ValueError: f(): expected face ids in [0, 2), got face id 2 at sample 1
     """
     face_ids = np.asarray(face_ids)
     uv = np.asarray(uv, dtype=np.float64)
     if face_ids.ndim != 1 or not np.issubdtype(face_ids.dtype, np.integer):
-        raise ValueError(f"{func}(): face_ids must be a 1-D integer array, got {face_ids.dtype} "
-                         f"array of shape {face_ids.shape}")
+        fail(func, "face_ids as a 1-D integer array", f"{face_ids.dtype} array of shape {face_ids.shape}")
     if uv.shape != (len(face_ids), 2):
-        raise ValueError(f"{func}(): uv must have shape ({len(face_ids)}, 2), got {uv.shape}")
+        fail(func, f"uv of shape ({len(face_ids)}, 2) (one row per face id)", f"shape {uv.shape}")
     bad = np.flatnonzero((face_ids < 0) | (face_ids >= m))
     if len(bad):
-        raise ValueError(f"{func}(): sample {bad[0]} has face id {face_ids[bad[0]]} outside [0, {m})")
+        fail(func, f"face ids in [0, {m})", f"face id {face_ids[bad[0]]} at sample {bad[0]}")
     tol = 1e-12
     bad = np.flatnonzero(~np.isfinite(uv).all(1) | (uv < -tol).any(1) | (uv.sum(1) > 1 + tol))
     if len(bad):
-        raise ValueError(f"{func}(): sample {bad[0]} has uv = {uv[bad[0]].tolist()}; "
-                         "expected u >= 0, v >= 0, u + v <= 1")
+        fail(func, "uv with u >= 0, v >= 0, u + v <= 1", f"uv = {uv[bad[0]].tolist()} at sample {bad[0]}")
     uv = np.clip(uv, 0.0, 1.0)
     over = uv.sum(1) > 1.0
     uv[over] /= uv[over].sum(1, keepdims=True)
@@ -277,7 +220,26 @@ def check_samples(face_ids, uv, m, func):
 
 
 def padded_to_csr(idx, W, n_cols):
-    """CSR matrix ``(k, n_cols)`` from padded rows (duplicates summed, zeros dropped)."""
+    """Return the CSR matrix of padded rows (duplicates summed, zeros dropped).
+
+    Parameters
+    ----------
+    idx : (k, w) int numpy array
+        Column of every entry (padding entries may point anywhere).
+    W : (k, w) float64 numpy array
+        Weights (zero on padding).
+    n_cols : int
+        Number of columns.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape ``(k, n_cols)``, float64
+
+    Examples
+    --------
+    >>> padded_to_csr(np.array([[0, 2, 0]]), np.array([[0.25, 0.5, 0.25]]), 3).toarray().tolist()
+    [[0.5, 0.0, 0.5]]
+    """
     k, w = W.shape
     # Copies: sum_duplicates() sorts and compacts the arrays in place.
     M = sp.csr_matrix((W.ravel().copy(), idx.ravel().copy(), np.arange(0, k * w + 1, w)),
@@ -314,7 +276,10 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     Raises
     ------
     ValueError
-        Invalid mesh, creases or samples; the message names the offending element.
+        Invalid mesh, creases or samples, or an unknown ``derivative``; the
+        message names the offending element. Two faces on the same three
+        vertices (a closed two-triangle component) are refused, see
+        :func:`~mi_loop.mesh.topology.validate_faces`.
 
     Notes
     -----
@@ -335,7 +300,7 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     ((1, 4), 1.0)
     """
     if derivative not in (None, "u", "v"):
-        raise ValueError(f"limit_matrix(): derivative must be None, 'u' or 'v', got {derivative!r}")
+        fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
     h = build_hierarchy(F, n_vertices, creases)
     face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))

@@ -1,17 +1,42 @@
-"""Limit positions and normals at the control vertices (NumPy/SciPy)."""
+"""Limit positions and normals at the control vertices, and dense limit meshes (NumPy/SciPy)."""
 from __future__ import annotations
 
 import numpy as np
 
-from mi_loop.subdiv.limit import build_hierarchy, level_rows, padded_to_csr
+from mi_loop.errors import fail
+from mi_loop.mesh.topology import validate_faces, validate_mesh
+from mi_loop.subdiv.hierarchy import build_hierarchy
+from mi_loop.subdiv.limit import level_rows, padded_to_csr
 from mi_loop.subdiv.tessellation import tessellate
-from mi_loop.mesh.topology import validate_mesh
+
+__all__ = ["limit_masks", "limit_mesh", "limit_normals", "limit_positions", "tangent_masks", "vertex_samples"]
 
 _CORNER_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
 
 def vertex_samples(F, n_vertices: int):
-    """``(face_ids, uv)`` of one corner sample per control vertex (its limit point)."""
+    """Return one face-corner sample per control vertex, whose limit point is the vertex's.
+
+    Parameters
+    ----------
+    F : (m, 3) int numpy array
+        Validated faces; every vertex must be used by a face.
+    n_vertices : int
+        Number of vertices ``n``.
+
+    Returns
+    -------
+    face_ids : (n,) int64 numpy array
+        A face of every vertex.
+    uv : (n, 2) float64 numpy array
+        The vertex's corner in that face: ``(0, 0)``, ``(1, 0)`` or ``(0, 1)``.
+
+    Examples
+    --------
+    >>> face_ids, uv = vertex_samples(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> face_ids.tolist(), uv.tolist()
+    ([1, 0, 0, 1], [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])
+    """
     F = np.asarray(F)
     face = np.zeros(int(n_vertices), dtype=np.int64)
     corner = np.zeros(int(n_vertices), dtype=np.int64)
@@ -22,12 +47,46 @@ def vertex_samples(F, n_vertices: int):
 
 
 def limit_mesh(V, F, level: int = 3, creases=None):
-    """Dense limit mesh of a control mesh: ``(P (k, 3), F_tess (t, 3), N (k, 3))`` (NumPy).
+    """Return a dense, watertight mesh of limit points and unit limit normals.
 
-    Limit points and unit limit normals at a watertight level-``level``
-    tessellation; the mesh hierarchy is built once for all three row sets.
+    The hierarchy is built once for the three row sets (points, d/du, d/dv).
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+        Control points.
+    F : (m, 3) int numpy array
+        Control faces.
+    level : int, optional
+        Tessellation level of :func:`~mi_loop.subdiv.tessellation.tessellate` (0 to 8).
+    creases : optional
+        As in :func:`mi_loop.subdivision_matrix`.
+
+    Returns
+    -------
+    P : (k, 3) float64 numpy array
+        Limit points.
+    F_tess : (m 4**level, 3) int64 numpy array
+        Triangles over ``P``, oriented like the control faces.
+    N : (k, 3) float64 numpy array
+        Unit limit normals.
+
+    Raises
+    ------
+    ValueError
+        Invalid mesh, creases or level, or ``V`` not of shape ``(n, 3)``.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
+    >>> P, F_tess, N = limit_mesh(V, F, level=1)
+    >>> P.shape, F_tess.shape, bool(np.allclose(np.linalg.norm(N, axis=1), 1))
+    ((10, 3), (16, 3), True)
     """
     V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        fail("limit_mesh", "control points V of shape (n, 3)", f"shape {V.shape}")
     h = build_hierarchy(F, len(V), creases, "limit_mesh")
     fid, uv, F_t = tessellate(h.levels[0].F, level)
     VL = h.composed() @ V
@@ -37,36 +96,94 @@ def limit_mesh(V, F, level: int = 3, creases=None):
     return P, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
-def limit_masks(F, n_vertices, creases=None, derivatives=False):
-    """Return the limit masks at the control vertices as sparse matrices.
+def limit_masks(F, n_vertices, creases=None):
+    """Return the limit masks at the control vertices as a sparse matrix.
 
-    Row ``i`` of the position mask gives the limit point of control vertex
-    ``i``: for a smooth vertex of valence ``k`` the classic mask ``chi =
-    1 / (3 / (8 beta) + k)`` per neighbour and ``1 - k chi`` at the centre, on a
-    crease ``1/6, 2/3, 1/6``, at a corner the vertex itself; darts and
-    semi-sharp creases from the exact local subdivision matrix.
+    Row ``i`` gives the limit point of control vertex ``i``: for a smooth
+    vertex of valence ``k`` the classic mask ``chi = 1 / (3 / (8 beta) + k)``
+    per neighbour and ``1 - k chi`` at the centre, on a crease ``1/6, 2/3,
+    1/6``, at a corner the vertex itself; darts and semi-sharp creases from
+    the exact local subdivision matrix.
 
     Parameters
     ----------
     F : (m, 3) int numpy array
+        Control faces; every vertex must be used by a face.
     n_vertices : int
+        Number of control vertices ``n``.
     creases : optional
         As in :func:`mi_loop.subdivision_matrix`.
-    derivatives : bool
-        Also return the tangent masks along the two edges of one incident face.
 
     Returns
     -------
-    M : scipy.sparse.csr_matrix ``(n, n)``
-        Position masks; with ``derivatives`` also ``(Mu, Mv)`` of the same shape.
+    scipy.sparse.csr_matrix, shape ``(n, n)``, float64
+        ``M @ V`` are the limit points of the control vertices.
+
+    Raises
+    ------
+    ValueError
+        Invalid mesh or creases, or a vertex used by no face.
+
+    See Also
+    --------
+    tangent_masks : the two tangent masks at the same vertices.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> M = limit_masks(F, 4)
+    >>> M.toarray()[0].round(6).tolist()             # valence 3: chi = 1 / (3 / (8 beta) + 3) = 1/5
+    [0.4, 0.2, 0.2, 0.2]
     """
-    h = build_hierarchy(F, n_vertices, creases, "limit_masks")
+    _check_used(F, n_vertices, "limit_masks")
+    return _masks(F, n_vertices, creases, (None,), "limit_masks")[0]
+
+
+def tangent_masks(F, n_vertices, creases=None):
+    """Return the tangent masks ``d/du``, ``d/dv`` at the control vertices as sparse matrices.
+
+    Row ``i`` is the parametric derivative of the limit surface at control
+    vertex ``i`` in the face that :func:`vertex_samples` picks for it (along
+    that face's two edges from the vertex's corner); at an irregular vertex,
+    orthonormal rows spanning the tangent plane with ``cross(Mu V, Mv V)``
+    along the exact limit normal (see :func:`mi_loop.limit_matrix`).
+
+    Parameters
+    ----------
+    F : (m, 3) int numpy array
+        Control faces; every vertex must be used by a face.
+    n_vertices : int
+        Number of control vertices ``n``.
+    creases : optional
+        As in :func:`mi_loop.subdivision_matrix`.
+
+    Returns
+    -------
+    Mu : scipy.sparse.csr_matrix, shape ``(n, n)``, float64
+    Mv : scipy.sparse.csr_matrix, shape ``(n, n)``, float64
+
+    Raises
+    ------
+    ValueError
+        Invalid mesh or creases, or a vertex used by no face.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> Mu, Mv = tangent_masks(F, 4)
+    >>> bool(abs(Mu.sum(axis=1)).max() < 1e-12 and abs(Mv.sum(axis=1)).max() < 1e-12)   # rows sum to 0
+    True
+    """
+    _check_used(F, n_vertices, "tangent_masks")
+    return _masks(F, n_vertices, creases, ("u", "v"), "tangent_masks")
+
+
+def _masks(F, n_vertices, creases, derivatives, func):
+    """Mask matrices ``(n, n)`` at the control vertices, one per entry of ``derivatives``."""
+    h = build_hierarchy(F, n_vertices, creases, func)
     face, uv = vertex_samples(h.levels[0].F, n_vertices)
-    names = (None, "u", "v") if derivatives else (None,)
     S = h.composed()
-    rows = level_rows(h, face, uv, names)
-    Ms = [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in rows]
-    return tuple(Ms) if derivatives else Ms[0]
+    return [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in level_rows(h, face, uv, derivatives)]
 
 
 def limit_positions(V, F, creases=None):
@@ -75,12 +192,20 @@ def limit_positions(V, F, creases=None):
     Parameters
     ----------
     V : (n, 3) float numpy array
+        Control points, every one used by a face.
     F : (m, 3) int numpy array
+        Control faces.
     creases : optional
+        As in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
     (n, 3) float64 numpy array
+
+    Raises
+    ------
+    ValueError
+        Invalid mesh or creases, or a vertex used by no face.
 
     Examples
     --------
@@ -90,23 +215,61 @@ def limit_positions(V, F, creases=None):
     >>> np.round(mi_loop.limit_positions(V, F)[0], 6)   # beta(3) = 3/16... chi = 1/(2+3)
     array([0.2, 0.2, 0.2])
     """
-    V, F, _ = _checked(V, F)
-    return limit_masks(F, len(V), creases) @ V
+    V, F = _checked(V, F, "limit_positions")
+    return _masks(F, len(V), creases, (None,), "limit_positions")[0] @ V
 
 
 def limit_normals(V, F, creases=None):
-    """Return unit limit normals at the control vertices, ``(n, 3)`` float64."""
-    V, F, _ = _checked(V, F)
-    _, Mu, Mv = limit_masks(F, len(V), creases, derivatives=True)
+    """Return unit limit normals at the control vertices.
+
+    Parameters
+    ----------
+    V : (n, 3) float numpy array
+        Control points, every one used by a face.
+    F : (m, 3) int numpy array
+        Control faces.
+    creases : optional
+        As in :func:`mi_loop.subdivision_matrix`.
+
+    Returns
+    -------
+    (n, 3) float64 numpy array
+        ``cross(d/du, d/dv)`` of the limit surface at each vertex, normalised
+        (at an irregular vertex the exact limit normal).
+
+    Raises
+    ------
+    ValueError
+        Invalid mesh or creases, or a vertex used by no face.
+
+    Examples
+    --------
+    >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
+    >>> np.round(limit_normals(V, F)[0] * np.sqrt(3), 6).tolist()   # outward, along the vertex
+    [1.0, 1.0, 1.0]
+    """
+    V, F = _checked(V, F, "limit_normals")
+    Mu, Mv = _masks(F, len(V), creases, ("u", "v"), "limit_normals")
     N = np.cross(Mu @ V, Mv @ V)
     return N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
-def _checked(V, F):
-    V = np.asarray(V, dtype=np.float64)
-    used = np.zeros(len(V), bool)
-    used[np.asarray(F).ravel()] = True
+def _check_used(F, n_vertices, func):
+    """Every vertex must be used by a face (a vertex mask needs a face); F is validated first."""
+    F = validate_faces(F, n_vertices, func)
+    used = np.zeros(int(n_vertices), bool)
+    used[F.ravel()] = True
     if not used.all():
-        raise ValueError(f"limit_positions(): {int((~used).sum())} control vertices are not used by "
-                         "any face; drop them first (mi_loop.validate_mesh does)")
-    return validate_mesh(V, F, "limit_positions")
+        unused = np.flatnonzero(~used)
+        fail(func, "every control vertex used by a face (mi_loop.validate_mesh drops the others)",
+             f"{len(unused)} unused vertices, the first vertex {unused[0]}")
+
+
+def _checked(V, F, func):
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        fail(func, "control points V of shape (n, 3) with n > 0", f"shape {V.shape}")
+    _check_used(F, len(V), func)
+    V, F, _ = validate_mesh(V, F, func)
+    return V, F

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from mi_loop.mesh.halfedge import Topology
 from mi_loop.subdiv.boxspline import LATTICE
-from mi_loop.mesh.topology import Topology
+
+__all__ = ["corner_regular", "irregular_points", "phantom_matrices", "stam_points"]
 
 
-def ring6(topo: Topology, centre: np.ndarray, start: np.ndarray) -> np.ndarray:
+def _ring6(topo: Topology, centre: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Walk the one-ring of ``centre`` counter-clockwise from ``start``.
 
     The first step goes through the face ``(centre, start, x)``; later steps
@@ -45,8 +47,30 @@ def ring6(topo: Topology, centre: np.ndarray, start: np.ndarray) -> np.ndarray:
 
 
 def stam_points(topo: Topology, a, b, c) -> np.ndarray:
-    """The 12 regular-patch points of faces ``(a, b, c)`` in Stam's order, -1 if missing."""
-    ra, rb, rc = ring6(topo, a, b), ring6(topo, b, c), ring6(topo, c, a)
+    """Return the 12 regular-patch points of faces ``(a, b, c)`` in Stam's order.
+
+    Parameters
+    ----------
+    topo : Topology
+        Mesh connectivity.
+    a, b, c : (k,) int numpy arrays
+        Corners of each face, in the face's orientation.
+
+    Returns
+    -------
+    (k, 12) int64 numpy array
+        Vertex ids at the lattice points :data:`~mi_loop.subdiv.boxspline.LATTICE`,
+        -1 where the patch lacks the point (a boundary or crease: a phantom
+        point, see :func:`phantom_matrices`).
+
+    Examples
+    --------
+    >>> from mi_loop.mesh.halfedge import Topology
+    >>> topo = Topology.build(np.array([[0, 1, 2]]), 3)
+    >>> stam_points(topo, np.array([0]), np.array([1]), np.array([2])).tolist()
+    [[-1, -1, -1, 0, -1, -1, 1, 2, -1, -1, -1, -1]]
+    """
+    ra, rb, rc = _ring6(topo, a, b), _ring6(topo, b, c), _ring6(topo, c, a)
     P = np.stack([ra[:, 4], ra[:, 3], ra[:, 5], a, ra[:, 2], rb[:, 3],
                   b, c, rc[:, 4], rb[:, 4], rb[:, 5], rc[:, 3]], axis=1)
     return P
@@ -56,7 +80,7 @@ _LATTICE_KEY = {tuple(p): i for i, p in enumerate(LATTICE)}
 _NEIGH = [(1, 0), (0, 1), (-1, 1), (-1, 0), (0, -1), (1, -1)]
 
 
-def phantom_matrix(missing: np.ndarray) -> np.ndarray:
+def _phantom_matrix(missing: np.ndarray) -> np.ndarray:
     """``(12, 12)`` matrix ``Phi``: Stam points ``X = Phi @ Y`` from the present slots ``Y``.
 
     A missing slot ``x`` becomes ``p + q - r`` with ``p, q`` present neighbours
@@ -77,7 +101,7 @@ def phantom_matrix(missing: np.ndarray) -> np.ndarray:
                 found = True
                 break
         if not found:
-            raise RuntimeError(f"phantom_matrix(): no phantom rule for slot {x} with missing {missing.tolist()}")
+            raise RuntimeError(f"phantom_matrices(): internal error: no phantom rule for slot {x} with missing {missing.tolist()}")
     return Phi
 
 
@@ -85,9 +109,36 @@ _PHI_CACHE: dict[bytes, np.ndarray] = {}
 
 
 def phantom_matrices(P: np.ndarray):
-    """Group patches by their missing-slot pattern.
+    """Group patches by their missing-slot pattern and return each pattern's phantom matrix.
 
-    Returns ``(pattern_id (k,), Phis (p, 12, 12))``.
+    A missing slot ``x`` becomes ``p + q - r`` with ``p, q`` present neighbours
+    of ``x`` adjacent to each other and ``r = p + q - x`` present (the
+    parallelogram rule), so the Stam points are ``X = Phi @ Y`` with ``Y`` the
+    present slots.
+
+    Parameters
+    ----------
+    P : (k, 12) int numpy array
+        Patch points from :func:`stam_points`, -1 where missing.
+
+    Returns
+    -------
+    pattern_id : (k,) int64 numpy array
+        Pattern of every patch, an index into ``Phis``.
+    Phis : (p, 12, 12) float64 numpy array
+        The matrix of each pattern (identity for a complete patch).
+
+    Raises
+    ------
+    RuntimeError
+        If a missing slot has no parallelogram rule (never for the patches of
+        a mesh that :func:`~mi_loop.mesh.topology.validate_faces` accepts).
+
+    Examples
+    --------
+    >>> pid, Phis = phantom_matrices(np.array([np.arange(12), [-1] + list(range(11))]))
+    >>> pid.tolist(), Phis.shape, bool(np.allclose(Phis[0], np.eye(12)))
+    ([0, 1], (2, 12, 12), True)
     """
     missing = P < 0
     codes = missing @ (1 << np.arange(12))
@@ -96,7 +147,7 @@ def phantom_matrices(P: np.ndarray):
     for code in uniq:
         key = int(code).to_bytes(2, "little")
         if key not in _PHI_CACHE:
-            _PHI_CACHE[key] = phantom_matrix((int(code) >> np.arange(12)) & 1 == 1)
+            _PHI_CACHE[key] = _phantom_matrix((int(code) >> np.arange(12)) & 1 == 1)
         Phis.append(_PHI_CACHE[key])
     return pattern_id, np.stack(Phis)
 
@@ -107,17 +158,32 @@ def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray,
 
     Regular: smooth with valence 6 and no sharp edge, or a crease vertex
     (exactly two sharp edges) whose sector containing the face has 3 faces.
+
+    Parameters
+    ----------
+    topo : Topology
+        Mesh connectivity.
+    kind : (n,) int numpy array
+        :meth:`Topology.vertex_kind` of every vertex.
+    valence : (n,) int numpy array
+        :meth:`Topology.valence` of every vertex.
+    corner, nxt : (k,) int numpy arrays
+        A face corner and the next corner of the same face.
+
+    Returns
+    -------
+    (k,) bool numpy array
     """
     sc = topo.sharp_count()[corner]
     smooth_reg = (sc == 0) & (valence[corner] == 6)
-    R = ring6(topo, corner, nxt)
+    R = _ring6(topo, corner, nxt)
     sector_pts = (R >= 0).sum(1)
     # A crease sector of 3 faces has 4 points and both ends on sharp edges.
     crease_reg = (kind[corner] == 1) & (sector_pts == 4)
     return smooth_reg | crease_reg
 
 
-def vertex_sector(topo: Topology, v: np.ndarray, start: np.ndarray, max_valence: int):
+def _vertex_sector(topo: Topology, v: np.ndarray, start: np.ndarray, max_valence: int):
     """Neighbours of ``v`` reachable without crossing sharp edges, from ``start``.
 
     Counter-clockwise first (the first step through face ``(v, start, x)``),
@@ -150,12 +216,24 @@ def vertex_sector(topo: Topology, v: np.ndarray, start: np.ndarray, max_valence:
 
 
 def irregular_points(topo: Topology, v, ri, rj, max_valence: int) -> np.ndarray:
-    """Patch points of faces ``(v, ri, rj)`` with irregular ``v`` (canonical order).
+    """Return the patch points of faces ``(v, ri, rj)`` whose corner ``v`` is irregular.
 
-    ``[v, sector of v from ri (ccw then cw, padded), 3 outer points of ri,
-    2 outer points of rj]``, -1 where absent.
+    Parameters
+    ----------
+    topo : Topology
+        Mesh connectivity.
+    v, ri, rj : (k,) int numpy arrays
+        The irregular corner and the two others, in the face's orientation.
+    max_valence : int
+        Largest valence in the mesh (pads the sector).
+
+    Returns
+    -------
+    (k, 1 + 2 max_valence + 5) int64 numpy array
+        ``[v, sector of v from ri (counter-clockwise, then clockwise, padded),
+        3 outer points of ri, 2 outer points of rj]``, -1 where absent.
     """
-    L, _ = vertex_sector(topo, v, ri, max_valence)
-    Ri = ring6(topo, ri, rj)
-    Rj = ring6(topo, rj, v)
+    L, _ = _vertex_sector(topo, v, ri, max_valence)
+    Ri = _ring6(topo, ri, rj)
+    Rj = _ring6(topo, rj, v)
     return np.concatenate([v[:, None], L, Ri[:, 3:6], Rj[:, 3:5]], axis=1)

@@ -15,24 +15,54 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mi_loop.mesh.topology import Topology, check_creases, validate_faces
+from mi_loop.mesh.halfedge import Topology
+from mi_loop.mesh.topology import check_creases, validate_faces
+
+__all__ = ["loop_beta", "subdivide_topology", "subdivision_matrix"]
 
 
 def loop_beta(k):
-    """Loop's original vertex weight ``beta(k)`` for valence ``k``."""
+    """Return Loop's original vertex weight ``beta(k) = (5/8 - (3/8 + cos(2 pi / k) / 4)^2) / k``.
+
+    Parameters
+    ----------
+    k : int or int numpy array
+        Valence (> 0).
+
+    Returns
+    -------
+    float64 numpy array of the shape of ``k``
+
+    Examples
+    --------
+    >>> float(loop_beta(6)) == 1 / 16, float(loop_beta(3)) == 3 / 16
+    (True, True)
+    """
     k = np.asarray(k, dtype=np.float64)
     return (5.0 / 8.0 - (3.0 / 8.0 + np.cos(2.0 * np.pi / k) / 4.0) ** 2) / k
 
 
 def subdivide_topology(topo: Topology):
-    """Subdivide once.
+    """Subdivide a validated mesh once.
+
+    Parameters
+    ----------
+    topo : Topology
+        Connectivity and crease sharpness of the coarse mesh.
 
     Returns
     -------
-    S : scipy CSR ``(n + e, n)``
+    S : scipy.sparse.csr_matrix, shape ``(n + e, n)``, float64
         ``V_fine = S @ V``; fine vertex ``n + i`` is the new vertex of edge ``i``.
     fine : Topology
         Topology of the fine mesh, sharpness of child edges decremented.
+
+    Examples
+    --------
+    >>> from mi_loop.mesh.halfedge import Topology
+    >>> S, fine = subdivide_topology(Topology.build(np.array([[0, 1, 2]]), 3))
+    >>> S.shape, fine.F.shape
+    ((6, 3), (4, 3))
     """
     F, n, E = topo.F, topo.n, topo.E
     e = len(E)

@@ -3,7 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from mi_loop.mesh.topology import Topology, validate_faces
+from mi_loop.errors import fail
+from mi_loop.mesh.halfedge import Topology
+from mi_loop.mesh.topology import validate_faces
+
+__all__ = ["tessellate"]
 
 
 def tessellate(F, level: int = 3):
@@ -42,7 +46,7 @@ def tessellate(F, level: int = 3):
     (10, 16)
     """
     if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level <= 8:
-        raise ValueError(f"tessellate(): level must be an integer in [0, 8], got {level!r}")
+        fail("tessellate", "an integer level in [0, 8]", repr(level))
     F = np.asarray(F)
     n = int(F.max()) + 1 if F.size else 0
     F = validate_faces(F, n, "tessellate")
@@ -75,7 +79,7 @@ def tessellate(F, level: int = 3):
         forward = (a < b)[:, None]
         pos = np.where(forward, s[None, :], R - s[None, :]) - 1
         key[:, edge_local[c]] = n + eid[:, None] * e_len + pos
-    uniq, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
+    _, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
     inverse = inverse.reshape(m, -1)
     f_first, g_first = np.divmod(first, len(i))
     uv = np.stack([i[g_first], j[g_first]], 1) / R

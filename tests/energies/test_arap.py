@@ -164,7 +164,7 @@ def test_energy_accepts_point3f_and_reuses_kernels():
     (np.zeros((0, 3)), [[0, 1, 2]], {}, r"ARAP\(\): expected rest vertices of shape \(k, 3\) with k > 0, got shape \(0, 3\)"),
     ([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], [[0, 1, 2]], {},
      r"ARAP\(\): expected finite rest vertices, got row 2 = \[nan, 1.0, 0.0\]"),
-    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], {}, r"face 0 = \[0, 1, 3\] has an index outside"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], {}, r"ARAP\(\): expected face indices in \[0, 3\), got face 0 = \[0, 1, 3\]"),
     ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], {}, r"ARAP\(\): expected rest faces of non-zero area \(cotangent weights\), got face 0 = \[0, 1, 2\] of zero area"),
     ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], {"min_weight": 0.0}, r"ARAP\(\): expected a finite min_weight > 0, got 0.0"),
 ])

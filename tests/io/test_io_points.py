@@ -1,15 +1,14 @@
 """Reading oriented points (mi_loop.io.points): formats, mesh sampling, errors, normal estimation."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from mi_loop.io.points import load_oriented_points
 from mi_loop.mesh.points import estimate_normals
 
-from helpers import DATA
+from helpers import DATA, REPO
+
 BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
 
 
@@ -122,52 +121,85 @@ def test_real_bunny_scan():
     assert np.mean(np.sum((P - P.mean(0)) * N, 1) > 0) > 0.7
 
 
+def _error(path, **kwargs) -> str:
+    with pytest.raises(ValueError) as info:
+        load_oriented_points(path, **kwargs)
+    message = str(info.value)
+    assert message.startswith("load_oriented_points(): expected ") and "\n" not in message
+    return message[len("load_oriented_points(): "):]
+
+
 def test_errors(tmp_path):
-    with pytest.raises(ValueError, match="no such file"):
-        load_oriented_points(tmp_path / "missing.ply")
-    (tmp_path / "a.stl").write_text("solid")
-    with pytest.raises(ValueError, match="unknown suffix '.stl'"):
-        load_oriented_points(tmp_path / "a.stl")
-    (tmp_path / "empty.xyz").write_text("# nothing\n")
-    with pytest.raises(ValueError, match="holds no points"):
-        load_oriented_points(tmp_path / "empty.xyz")
-    (tmp_path / "bad.ply").write_bytes(b"\x00\x01garbage")
-    with pytest.raises(ValueError, match="cannot parse"):
-        load_oriented_points(tmp_path / "bad.ply")
-    (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(ValueError, match="cannot read NPZ"):
-        load_oriented_points(tmp_path / "bad.npz")
-    (tmp_path / "cols.xyz").write_text("1 2 3 4\n5 6 7 8\n")
-    with pytest.raises(ValueError, match="got 4"):
-        load_oriented_points(tmp_path / "cols.xyz")
-    (tmp_path / "ragged.xyz").write_text("1 2 3\n5 6 7 8 9 10\n")
-    with pytest.raises(ValueError, match="fixed column count"):
-        load_oriented_points(tmp_path / "ragged.xyz")
-    (tmp_path / "nan.xyz").write_text("0 0 0\n1 nan 0\n")
-    with pytest.raises(ValueError, match="point 1 has a non-finite"):
-        load_oriented_points(tmp_path / "nan.xyz")
+    t = tmp_path
+    assert _error(t / "missing.ply") == f"expected an existing file, got '{t / 'missing.ply'}': no such file"
+    (t / "a.stl").write_text("solid")
+    assert _error(t / "a.stl") == ("expected a .ply, .xyz, .pts, .txt, .npz, .obj, .off, .glb, .gltf file, "
+                                   f"got '{t / 'a.stl'}' (suffix '.stl')")
+    (t / "empty.xyz").write_text("# nothing\n")
+    assert _error(t / "empty.xyz") == f"expected points in '{t / 'empty.xyz'}', got none (the file holds no points)"
+    (t / "bad.ply").write_bytes(b"\x00\x01garbage")
+    assert _error(t / "bad.ply") == ("expected a PLY file (a header from 'ply' to 'end_header') in "
+                                     f"'{t / 'bad.ply'}', got a file starting b'\\x00\\x01garbage'")
+    (t / "bad.npz").write_bytes(b"not a zip")
+    assert _error(t / "bad.npz").startswith(f"expected a readable NPZ file '{t / 'bad.npz'}', got ")
+    (t / "cols.xyz").write_text("1 2 3 4\n5 6 7 8\n")
+    assert _error(t / "cols.xyz") == (f"expected 3 (x y z) or 6 (x y z nx ny nz) columns in '{t / 'cols.xyz'}', "
+                                      "got 4 on line 1 = '1 2 3 4'")
+    (t / "ragged.xyz").write_text("# x y z\n1 2 3\n5 6 7 8 9 10\n")
+    assert _error(t / "ragged.xyz") == (f"expected 3 numbers on every line of '{t / 'ragged.xyz'}' (as on its first "
+                                        "data line), got line 3 = '5 6 7 8 9 10'")
+    (t / "word.xyz").write_text("1 2 3\n5 six 7\n")
+    assert _error(t / "word.xyz") == (f"expected 3 numbers on every line of '{t / 'word.xyz'}' (as on its first "
+                                      "data line), got line 2 = '5 six 7'")
+    (t / "nan.xyz").write_text("0 0 0\n1 nan 0\n")
+    assert _error(t / "nan.xyz") == f"expected finite points in '{t / 'nan.xyz'}', got point 1 = [1.0, nan, 0.0] (1 such points)"
     P = _sphere(10)
     N = P.copy()
     N[7] = 0
-    np.savez(tmp_path / "zero.npz", points=P, normals=N)
-    with pytest.raises(ValueError, match="normal 7 is zero-length"):
-        load_oriented_points(tmp_path / "zero.npz")
-    np.savez(tmp_path / "count.npz", points=P, normals=P[:9])
-    with pytest.raises(ValueError, match="10 points but 9 normals"):
-        load_oriented_points(tmp_path / "count.npz")
-    np.savez(tmp_path / "nopoints.npz", pts=P)
-    with pytest.raises(ValueError, match="named 'points'"):
-        load_oriented_points(tmp_path / "nopoints.npz")
-    with pytest.raises(ValueError, match="n_samples must be a positive integer"):
-        load_oriented_points(tmp_path / "count.npz", n_samples=0)
+    N[8] = np.nan
+    np.savez(t / "zero.npz", points=P, normals=N)
+    assert _error(t / "zero.npz") == (f"expected finite, non-zero normals in '{t / 'zero.npz'}', "
+                                      "got normal 7 = [0.0, 0.0, 0.0] (2 such normals)")
+    np.savez(t / "count.npz", points=P, normals=P[:9])
+    assert _error(t / "count.npz") == (f"expected one normal per point, shape (10, 3), in '{t / 'count.npz'}', "
+                                       "got normals of shape (9, 3)")
+    np.savez(t / "nopoints.npz", pts=P, extra=P)
+    assert _error(t / "nopoints.npz") == ("expected an array 'points' (N, 3) and optional 'normals' (N, 3) in "
+                                          f"'{t / 'nopoints.npz'}', got arrays ['extra', 'pts']")
+    np.savez(t / "flat.npz", points=P.ravel())
+    assert _error(t / "flat.npz") == f"expected points of shape (N, 3) in '{t / 'flat.npz'}', got shape (30,)"
+    for bad in (0, -3, 2.5, True):
+        assert _error(t / "count.npz", n_samples=bad) == f"expected n_samples a positive integer or None, got {bad!r}"
+
+
+def test_mesh_errors_name_the_file_and_element(tmp_path):
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n")
+    assert _error(tmp_path / "nan.obj") == (f"expected finite vertex coordinates in '{tmp_path / 'nan.obj'}', "
+                                            "got vertex 1 = [1.0, nan, 0.0] (1 such vertices)")
+    flat = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n" \
+           "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"
+    (tmp_path / "flat.ply").write_text(flat)
+    assert _error(tmp_path / "flat.ply") == (f"expected a mesh with a positive surface area in '{tmp_path / 'flat.ply'}', "
+                                             "got zero area")
+    (tmp_path / "nanmesh.ply").write_text(flat.replace("2 0 0", "2 inf 0"))
+    assert _error(tmp_path / "nanmesh.ply") == (f"expected finite vertex coordinates in '{tmp_path / 'nanmesh.ply'}', "
+                                                "got vertex 2 = [2.0, inf, 0.0] (1 such vertices)")
+
+
+def test_obj_without_faces_is_a_point_cloud(tmp_path):
+    P = _sphere(30)
+    (tmp_path / "p.obj").write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in P.tolist()))
+    Q, N, info = load_oriented_points(tmp_path / "p.obj")
+    np.testing.assert_array_equal(Q, P)
+    assert N is None and info["kind"] == "points" and info["format"] == "obj"
 
 
 def test_ply_with_partial_normals_is_rejected(tmp_path):
     head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n" \
            "property float z\nproperty float nx\nend_header\n0 0 0 1\n1 0 0 1\n"
     (tmp_path / "p.ply").write_text(head)
-    with pytest.raises(ValueError, match="only some of nx, ny, nz"):
-        load_oriented_points(tmp_path / "p.ply")
+    assert _error(tmp_path / "p.ply") == (f"expected PLY vertex normals nx, ny, nz all three or none in "
+                                          f"'{tmp_path / 'p.ply'}', got only ['nx']")
 
 
 @pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (3.0, -2.0, 1.0)])
@@ -200,3 +232,22 @@ def test_estimate_normals_errors():
     Q[5, 2] = np.inf
     with pytest.raises(ValueError, match=r"estimate_normals\(\): expected finite points, got row 5 = \[.*inf\]"):
         estimate_normals(Q)
+
+
+def test_estimate_normals_is_deterministic():
+    """Same points, same normals, bit for bit: twice in this process and once more with one thread."""
+    import hashlib
+    import subprocess
+    import sys
+
+    P = np.load(DATA / "sequences" / "fox_walk_24f.npz")["vertices"][0].astype(np.float64)
+    P = np.vstack([P, P[:40] + 1e-3, P[:10]])            # near and exact duplicates: ties in the kNN
+    first, second = estimate_normals(P), estimate_normals(P.copy())
+    assert first.tobytes() == second.tobytes()
+    code = ("import sys, hashlib, numpy as np\nfrom mi_loop.mesh.points import estimate_normals\n"
+            "P = np.frombuffer(sys.stdin.buffer.read()).reshape(-1, 3)\n"
+            "print(hashlib.sha256(estimate_normals(P).tobytes()).hexdigest())\n")
+    env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"}
+    out = subprocess.run([sys.executable, "-c", code], input=P.tobytes(), capture_output=True, env=env, cwd=REPO,
+                         check=True, timeout=120)
+    assert out.stdout.decode().strip() == hashlib.sha256(first.tobytes()).hexdigest()

@@ -1,6 +1,8 @@
 """Every input rejected at the public boundary, with the message checked."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -10,45 +12,111 @@ TET_V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
 TET_F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
 
 
-@pytest.mark.parametrize("V, F, match", [
-    (np.zeros((0, 3)), TET_F, "no vertices"),
-    (TET_V, np.zeros((0, 3), int), "no faces"),
-    (TET_V, np.array([[0, 1, 2, 3]]), r"shape \(m, 3\) \(triangles only\)"),
-    (TET_V[:, :2], TET_F, r"vertices must have shape \(n, 3\)"),
-    (TET_V, np.array([[0, 1, 7]]), r"face 0 = \[0, 1, 7\] has an index outside \[0, 4\)"),
-    (TET_V, np.array([[0, 1, 2], [0, -1, 2]]), r"face 1 = \[0, -1, 2\] has an index outside"),
-    (np.where(np.arange(12).reshape(4, 3) == 5, np.nan, TET_V), TET_F, "vertex 1 has a non-finite"),
-    (np.where(np.arange(12).reshape(4, 3) == 0, np.inf, TET_V), TET_F, "vertex 0 has a non-finite"),
-    (TET_V, np.array([[0, 1, 1]]), r"face 0 = \[0, 1, 1\] is degenerate"),
-    (TET_V, np.array([[0, 1, 2], [0, 1, 3]]), r"edge \(0, 1\) is used twice in the same direction"),
-    (np.zeros((5, 3)), np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]), r"used twice|non-manifold"),
-    (TET_V, np.array([[0, 1.5, 2]]), "face indices must be integers"),
+def exactly(message: str) -> str:
+    """A ``match`` pattern for exactly this message (one line, nothing before or after)."""
+    return "^" + re.escape(message) + "$"
+
+
+NAN_V = np.where(np.arange(12).reshape(4, 3) == 5, np.nan, TET_V)
+INF_V = np.where(np.arange(12).reshape(4, 3) == 0, np.inf, TET_V)
+DOUBLE = "a closed two-triangle component, whose limit surface is flat and doubly covered and whose " \
+         "refinement has double edges; remove it"
+
+
+@pytest.mark.parametrize("V, F, message", [
+    (np.zeros((0, 3)), TET_F, "expected vertices of shape (n, 3) with n > 0, got shape (0, 3)"),
+    (TET_V[:, :2], TET_F, "expected vertices of shape (n, 3) with n > 0, got shape (4, 2)"),
+    (np.array([["a", "b", "c"]]), TET_F, "expected numeric vertex coordinates, got dtype <U1"),
+    (NAN_V, TET_F, "expected finite vertex coordinates, got vertex 1 = [1.0, -1.0, nan] (1 such vertices)"),
+    (INF_V, TET_F, "expected finite vertex coordinates, got vertex 0 = [inf, 1.0, 1.0] (1 such vertices)"),
+    (TET_V, np.zeros((0, 3), int), "expected faces of shape (m, 3) with m > 0 (triangles only), got shape (0, 3)"),
+    (TET_V, np.array([[0, 1, 2, 3]]),
+     "expected faces of shape (m, 3) with m > 0 (triangles only), got shape (1, 4)"),
+    (TET_V, np.array([[0, 1.5, 2]]), "expected integer face indices, got dtype float64, face 0 = [0.0, 1.5, 2.0]"),
+    (TET_V, np.array([[0, 1, 7]]), "expected face indices in [0, 4), got face 0 = [0, 1, 7]"),
+    (TET_V, np.array([[0, 1, 2], [0, -1, 2]]), "expected face indices in [0, 4), got face 1 = [0, -1, 2]"),
+    (TET_V, np.array([[0, 1, 1]]), "expected faces with three distinct vertices, got face 0 = [0, 1, 1] (degenerate)"),
+    (TET_V, np.array([[0, 1, 2], [0, 1, 3]]),
+     ("expected consistently oriented faces (each directed edge in one face), "
+      "got edge (0, 1) used in the same direction by faces 0 and 1")),
+    (np.zeros((5, 3)), np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]),
+     "expected a manifold mesh (at most two faces per edge), got non-manifold edge (0, 1) shared by 3 faces (0, 1, 2)"),
+    (TET_V[:3], np.array([[0, 1, 2], [0, 2, 1]]),
+     f"expected no two faces on the same three vertices, got faces 0 = [0, 1, 2] and 1 = [0, 2, 1]: {DOUBLE}"),
 ])
-def test_validate_mesh_rejects(V, F, match):
-    with pytest.raises(ValueError, match=match):
+def test_validate_mesh_rejects(V, F, message):
+    with pytest.raises(ValueError, match=exactly("validate_mesh(): " + message)):
         mi_loop.validate_mesh(V, F)
 
 
+def test_whole_float_faces_accepted():
+    _, F, _ = mi_loop.validate_mesh(TET_V, TET_F.astype(float))
+    assert F.dtype == np.int64
+    np.testing.assert_array_equal(F, TET_F)
+
+
+def test_caller_named_in_message():
+    """The caller's name replaces validate_mesh; a CLI option is written without parentheses."""
+    with pytest.raises(ValueError, match=exactly("fit(): expected face indices in [0, 4), got face 0 = [0, 1, 7]")):
+        mi_loop.validate_mesh(TET_V, [[0, 1, 7]], "fit")
+    with pytest.raises(ValueError, match=r"^fit --template: expected face indices"):
+        mi_loop.validate_mesh(TET_V, [[0, 1, 7]], "fit --template")
+
+
 def test_non_manifold_edge_named():
-    # Three faces on edge (0, 1) with consistent directions impossible: two share 0->1.
-    F = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4]])
-    with pytest.raises(ValueError, match=r"edge \(1, 0\) is used twice|non-manifold"):
+    """Three or more faces on an edge are reported as a non-manifold edge, never as an orientation error."""
+    F = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4]])     # two of them share the direction 1 -> 0
+    with pytest.raises(ValueError, match=exactly(
+            "validate_mesh(): expected a manifold mesh (at most two faces per edge), "
+            "got non-manifold edge (0, 1) shared by 3 faces (0, 1, 2)")):
         mi_loop.validate_mesh(np.random.rand(5, 3), F)
+    # Four faces, consistently paired: no direction is used twice, but still non-manifold.
+    F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [1, 0, 5], [7, 8, 9]])
+    with pytest.raises(ValueError, match=exactly(
+            "validate_mesh(): expected a manifold mesh (at most two faces per edge), "
+            "got non-manifold edge (0, 1) shared by 4 faces (0, 1, 2, 3)")):
+        mi_loop.validate_mesh(np.random.rand(10, 3), F)
+
+
+def test_two_sided_bipyramid_is_non_manifold():
+    """A 'bipyramid' over a 2-gon (two triangles glued to two others along one edge) is refused."""
+    F = np.array([[0, 1, 2], [1, 0, 2], [1, 0, 3], [0, 1, 3]])
+    with pytest.raises(ValueError, match=r"non-manifold edge \(0, 1\) shared by 4 faces \(0, 1, 2, 3\)"):
+        mi_loop.validate_mesh(np.random.rand(4, 3), F)
 
 
 def test_non_manifold_vertex_named():
     # Two tetrahedra sharing only vertex 0: a bow-tie vertex.
     F = np.concatenate([TET_F, np.where(TET_F == 0, 0, TET_F + 3)])
-    with pytest.raises(ValueError, match="vertex 0 is non-manifold .*2 separate fans"):
+    with pytest.raises(ValueError, match=exactly(
+            "validate_mesh(): expected a manifold mesh (the faces around each vertex form one fan), "
+            "got non-manifold vertex 0, whose faces form 2 separate fans")):
         mi_loop.validate_mesh(np.random.rand(7, 3), F)
+
+
+def test_double_face_component_named_inside_a_larger_mesh():
+    """A two-triangle closed component next to a valid one is named by its faces."""
+    F = np.concatenate([TET_F, [[4, 5, 6], [5, 4, 6]]])
+    message = f"expected no two faces on the same three vertices, got faces 4 = [4, 5, 6] and 5 = [5, 4, 6]: {DOUBLE}"
+    V = np.random.default_rng(0).random((7, 3))
+    with pytest.raises(ValueError, match=exactly("validate_mesh(): " + message)):
+        mi_loop.validate_mesh(V, F)
+    for call, name in ((lambda: mi_loop.subdivision_matrix(F, 7), "subdivision_matrix"),
+                       (lambda: mi_loop.limit_matrix(F, 7, [0], [[0.2, 0.2]]), "limit_matrix"),
+                       (lambda: mi_loop.tessellate(F, 1), "tessellate"),
+                       (lambda: mi_loop.limit_positions(V, F), "limit_positions"),
+                       (lambda: mi_loop.limit_masks(F, 7), "limit_masks")):
+        with pytest.raises(ValueError, match=exactly(f"{name}(): " + message)):
+            call()
 
 
 def test_unreferenced_vertices_dropped_with_warning():
     V = np.concatenate([TET_V, [[9.0, 9, 9], [8, 8, 8]]])
-    with pytest.warns(UserWarning, match="dropped 2 unreferenced vertices"):
+    with pytest.warns(UserWarning, match=exactly("validate_mesh(): dropped 2 unreferenced vertices")):
         V2, F2, kept = mi_loop.validate_mesh(V, TET_F)
     np.testing.assert_array_equal(kept, [0, 1, 2, 3])
     np.testing.assert_array_equal(F2, TET_F)
+    np.testing.assert_array_equal(V2, TET_V)
 
 
 def test_open_mesh_accepted():
@@ -56,66 +124,106 @@ def test_open_mesh_accepted():
     assert len(F) == 3 and len(V) == 4
 
 
-@pytest.mark.parametrize("creases, match", [
-    (np.array([[0, 1, 2]]), r"shape \(c, 2\)"),
-    (np.array([[0.0, 1.0]]), "integer array"),
-    ((np.array([[0, 1]]), np.array([1.0, 2.0])), "1 crease edges but 2 sharpness"),
-    ((np.array([[0, 1]]), np.array([0.0])), "sharpness 0.0; expected a positive integer or inf"),
-    ((np.array([[0, 1]]), np.array([1.5])), "sharpness 1.5"),
-    ((np.array([[0, 1]]), np.array([7.0])), "above 4 is not supported"),
-    (np.array([[0, 9]]), r"crease 0 = \[0, 9\] is not a pair of distinct vertex indices"),
-    (np.array([[1, 1]]), r"not a pair of distinct"),
+@pytest.mark.parametrize("creases, message", [
+    (np.array([[0, 1, 2]]), "expected creases as an integer array of shape (c, 2), got int64 array of shape (1, 3)"),
+    (np.array([[0.0, 1.0]]), "expected creases as an integer array of shape (c, 2), got float64 array of shape (1, 2)"),
+    ((np.array([[0, 1]]), np.array([1.0, 2.0])), "expected one sharpness per crease edge (1), got 2 sharpness values"),
+    ((np.array([[0, 1]]), np.array([0.0])), "expected crease sharpness a positive integer or inf, got sharpness 0.0 at crease 0"),
+    ((np.array([[0, 1], [1, 2]]), np.array([1.0, 1.5])),
+     "expected crease sharpness a positive integer or inf, got sharpness 1.5 at crease 1"),
+    ((np.array([[0, 1]]), np.array([np.nan])), "expected crease sharpness a positive integer or inf, got sharpness nan at crease 0"),
+    ((np.array([[0, 1]]), np.array([7.0])),
+     "expected finite crease sharpness at most 4 (use inf for sharper), got sharpness 7 at crease 0"),
+    (np.array([[0, 9]]), "expected creases as pairs of distinct vertex indices in [0, 4), got crease 0 = [0, 9]"),
+    (np.array([[0, 1], [1, 1]]), "expected creases as pairs of distinct vertex indices in [0, 4), got crease 1 = [1, 1]"),
 ])
-def test_creases_rejected(creases, match):
-    with pytest.raises(ValueError, match=match):
+def test_creases_rejected(creases, message):
+    with pytest.raises(ValueError, match=exactly("subdivision_matrix(): " + message)):
         mi_loop.subdivision_matrix(TET_F, 4, creases)
 
 
 def test_crease_not_an_edge():
     F = np.array([[0, 1, 2], [0, 2, 3]])
-    with pytest.raises(ValueError, match=r"crease 0 = \[1, 3\] is not an edge of the mesh"):
+    with pytest.raises(ValueError, match=exactly(
+            "limit_matrix(): expected crease edges that are edges of the mesh, got crease 0 = [1, 3]")):
         mi_loop.limit_matrix(F, 4, np.array([0]), np.array([[0.1, 0.1]]), creases=np.array([[1, 3]]))
 
 
-@pytest.mark.parametrize("face_ids, uv, match", [
-    (np.array([4]), np.array([[0.1, 0.1]]), r"sample 0 has face id 4 outside \[0, 4\)"),
-    (np.array([0, -1]), np.array([[0.1, 0.1]] * 2), "sample 1 has face id -1"),
-    (np.array([0]), np.array([[0.7, 0.7]]), r"sample 0 has uv = \[0.7, 0.7\]; expected"),
-    (np.array([0]), np.array([[-0.1, 0.2]]), "sample 0 has uv"),
-    (np.array([0]), np.array([[np.nan, 0.2]]), "sample 0 has uv"),
-    (np.array([0]), np.array([[0.1, 0.1, 0.1]]), r"uv must have shape \(1, 2\)"),
-    (np.array([0.0]), np.array([[0.1, 0.1]]), "face_ids must be a 1-D integer array"),
+@pytest.mark.parametrize("face_ids, uv, message", [
+    (np.array([4]), np.array([[0.1, 0.1]]), "expected face ids in [0, 4), got face id 4 at sample 0"),
+    (np.array([0, -1]), np.array([[0.1, 0.1]] * 2), "expected face ids in [0, 4), got face id -1 at sample 1"),
+    (np.array([0]), np.array([[0.7, 0.7]]), "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [0.7, 0.7] at sample 0"),
+    (np.array([0, 0]), np.array([[0.1, 0.1], [-0.1, 0.2]]),
+     "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [-0.1, 0.2] at sample 1"),
+    (np.array([0]), np.array([[np.nan, 0.2]]), "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [nan, 0.2] at sample 0"),
+    (np.array([0]), np.array([[0.1, 0.1, 0.1]]), "expected uv of shape (1, 2) (one row per face id), got shape (1, 3)"),
+    (np.array([0.0]), np.array([[0.1, 0.1]]), "expected face_ids as a 1-D integer array, got float64 array of shape (1,)"),
 ])
-def test_samples_rejected(face_ids, uv, match):
-    with pytest.raises(ValueError, match=match):
+def test_samples_rejected(face_ids, uv, message):
+    with pytest.raises(ValueError, match=exactly("limit_matrix(): " + message)):
         mi_loop.limit_matrix(TET_F, 4, face_ids, uv)
 
 
 def test_derivative_name_rejected():
-    with pytest.raises(ValueError, match="derivative must be None, 'u' or 'v', got 'w'"):
+    with pytest.raises(ValueError, match=exactly("limit_matrix(): expected derivative None, 'u' or 'v', got 'w'")):
         mi_loop.limit_matrix(TET_F, 4, np.array([0]), np.array([[0.1, 0.1]]), derivative="w")
+
+
+def test_box_basis_derivative_rejected():
+    from mi_loop.subdiv.boxspline import box_basis
+
+    with pytest.raises(ValueError, match=exactly("box_basis(): expected derivative None, 'u' or 'v', got 'uv'")):
+        box_basis(np.zeros((1, 2)), "uv")
 
 
 @pytest.mark.parametrize("level", [-1, 9, 2.5, True])
 def test_tessellate_level_rejected(level):
-    with pytest.raises(ValueError, match="level must be an integer in \\[0, 8\\]"):
+    with pytest.raises(ValueError, match=exactly(f"tessellate(): expected an integer level in [0, 8], got {level!r}")):
         mi_loop.tessellate(TET_F, level)
 
 
-def test_limit_positions_rejects_unused_vertices():
+def test_vertex_functions_reject_unused_vertices():
     V = np.concatenate([TET_V, [[5.0, 5, 5]]])
-    with pytest.raises(ValueError, match="1 control vertices are not used"):
+    what = "expected every control vertex used by a face (mi_loop.validate_mesh drops the others), " \
+           "got 1 unused vertices, the first vertex 4"
+    with pytest.raises(ValueError, match=exactly("limit_positions(): " + what)):
         mi_loop.limit_positions(V, TET_F)
+    with pytest.raises(ValueError, match=exactly("limit_normals(): " + what)):
+        mi_loop.limit_normals(V, TET_F)
+    with pytest.raises(ValueError, match=exactly("limit_masks(): " + what)):
+        mi_loop.limit_masks(TET_F, 5)
+    from mi_loop.subdiv.masks import tangent_masks
+
+    with pytest.raises(ValueError, match=exactly("tangent_masks(): " + what)):
+        tangent_masks(TET_F, 5)
+
+
+def test_vertex_functions_reject_bad_control_points():
+    from mi_loop.subdiv.masks import limit_mesh
+
+    with pytest.raises(ValueError, match=exactly("limit_positions(): expected control points V of shape (n, 3) with n > 0, "
+                                                 "got shape (4, 2)")):
+        mi_loop.limit_positions(TET_V[:, :2], TET_F)
+    with pytest.raises(ValueError, match=exactly("limit_normals(): expected finite vertex coordinates, "
+                                                 "got vertex 1 = [1.0, -1.0, nan] (1 such vertices)")):
+        mi_loop.limit_normals(NAN_V, TET_F)
+    with pytest.raises(ValueError, match=exactly("limit_mesh(): expected control points V of shape (n, 3), got shape (12,)")):
+        limit_mesh(TET_V.ravel(), TET_F)
 
 
 def test_operator_rejects_wrong_control_points():
+    """Control points of the wrong count, shape or type (the operator's checks live in mi_loop.ad.control)."""
     import mitsuba as mi
     op = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]))
-    with pytest.raises(ValueError, match="expected 12 control coordinates .*got 9"):
+    count = exactly("LimitOperator(): expected 12 control coordinates (4 points, xyz interleaved), got 9")
+    with pytest.raises(ValueError, match=count):
         op.positions(mi.Float(np.zeros(9)))
-    with pytest.raises(ValueError, match=r"expected a \(4, 3\) tensor"):
+    with pytest.raises(ValueError, match=count):
         op.positions(mi.TensorXf(np.zeros((3, 3))))
-    with pytest.raises(TypeError, match="control points must be mi.Float"):
+    with pytest.raises(ValueError, match=exactly("LimitOperator(): expected a (n, 3) tensor of control points, "
+                                                 "got shape (4, 2)")):
+        op.positions(mi.TensorXf(np.zeros((4, 2))))
+    with pytest.raises(TypeError, match=r"^LimitOperator\(\): expected control points as mi\.Float .*, got list$"):
         op.positions([1.0, 2.0])
     op_p = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]), derivatives=False)
     with pytest.raises(ValueError, match="built with derivatives=False"):

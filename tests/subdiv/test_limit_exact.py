@@ -33,7 +33,7 @@ def bbox_diagonal(V) -> float:
     return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference(name: str):
     """Return (hierarchy, exact limit rows (n_L, n), face_ids, uv, vertex) of a test mesh."""
     mesh = meshes.MESHES[name]
@@ -96,7 +96,7 @@ def test_oracle_boundary_is_cubic_bspline():
     """Between two boundary (crease) vertices the limit is the uniform cubic B-spline."""
     mesh = meshes.grid()
     nx = 6
-    h, W, face_ids, uv, vertex = reference(mesh.name)
+    _, W, face_ids, uv, vertex = reference(mesh.name)
     L = W @ mesh.V
     checked = 0
     for f, (u, v), w in zip(face_ids, uv, vertex):
@@ -198,6 +198,31 @@ def test_derivatives_match_central_differences(mi_loop, name):
         err = abs(D - fd).max(axis=1)
         np.testing.assert_allclose(D, fd, rtol=0, atol=1e-6,
                                    err_msg=f"{name}, d/d{derivative}: {worst(err, face_ids, uv)}")
+
+
+def no_finite_sharpness(name: str) -> bool:
+    return not any(0 < s < math.inf for s in oracle.parse_creases(meshes.MESHES[name].creases).values())
+
+
+@pytest.mark.parametrize("name", [m for m in MESH_NAMES if no_finite_sharpness(m)])
+def test_derivatives_match_oracle_on_polynomial_patches(mi_loop, name):
+    """d/du, d/dv = the oracle's exact five-point stencil (h = 1/16) on level-1 sub-patches.
+
+    A level-1 sub-triangle without a control vertex is one quartic polynomial
+    (see ``oracle.polynomial_derivatives``), so the stencil is exact there and
+    the tolerance is rounding only: the stencil multiplies position errors
+    (1e-10 of the diagonal) by at most 18 / (12 h) = 24.
+    """
+    mesh = meshes.MESHES[name]
+    h = reference(name)[0]
+    face_ids, uv, du_ref, dv_ref = oracle.polynomial_derivatives(h, mesh.V, patch_level=1)
+    assert len(face_ids) >= 20 * len(mesh.F)
+    for d, ref in (("u", du_ref), ("v", dv_ref)):
+        ok = np.isfinite(ref).all(1)
+        D = mi_loop.limit_matrix(mesh.F, len(mesh.V), face_ids[ok], uv[ok], creases=mesh.creases, derivative=d)
+        err = np.linalg.norm(D @ mesh.V - ref[ok], axis=1)
+        np.testing.assert_allclose(D @ mesh.V, ref[ok], rtol=0, atol=24e-10 * bbox_diagonal(mesh.V),
+                                   err_msg=f"{name}, d/d{d}: {worst(err, face_ids[ok], uv[ok])}")
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,124 @@
+"""Sequences of frames: one NPZ file of vertex arrays, or one mesh or point-cloud file per frame.
+
+Frames are listed at once and read one at a time (a long capture need not fit
+in memory). In a directory, only mesh and point-cloud files count as frames
+(:data:`FRAME_SUFFIXES`), hidden files are skipped, and ``.txt`` files are
+ignored (a ``readme.txt`` is not a frame); a ``.txt`` point cloud given by
+name or matched by a glob pattern is read as XYZ text.
+"""
+from __future__ import annotations
+
+import glob
+import re
+from pathlib import Path
+
+import numpy as np
+
+from mi_loop.errors import fail
+from mi_loop.io.meshes import read_mesh
+from mi_loop.io.points import load_oriented_points
+
+__all__ = ["FRAME_SUFFIXES", "read_frames"]
+
+#: Suffixes of the files that :func:`read_frames` takes from a directory, sorted by name.
+FRAME_SUFFIXES = (".ply", ".obj", ".off", ".glb", ".gltf", ".xyz", ".pts", ".npz")
+_MESHES = (".obj", ".off", ".glb", ".gltf")
+
+
+def read_frames(inputs) -> list:
+    """List the frames of a sequence without reading them (they are read one at a time).
+
+    Parameters
+    ----------
+    inputs : list of str or os.PathLike
+        One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``; or mesh /
+        point-cloud files (any suffix :func:`~mi_loop.io.points.load_oriented_points`
+        reads), directories (their files with a suffix in :data:`FRAME_SUFFIXES`,
+        sorted by name; hidden files skipped) or glob patterns such as
+        ``'scan_*.ply'`` (sorted; ``.txt`` matches count too).
+
+    Returns
+    -------
+    list of callables
+        ``frames[t]()`` reads frame ``t`` and returns ``(name, V_or_P, F_or_None, N_or_None)``:
+        a mesh's vertices and faces, or a point cloud's points and normals
+        (None when the file has none).
+
+    Raises
+    ------
+    ValueError
+        Empty sequence, missing paths, a pattern that matches nothing, an NPZ
+        without ``vertices``/``faces`` or with arrays of the wrong shape.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     for name in ("b.xyz", "a.xyz", "readme.txt"):
+    ...         _ = open(os.path.join(d, name), "w").write("0 0 0\\n1 0 0\\n0 1 0\\n")
+    ...     frames = read_frames([d])
+    ...     [frame()[0] for frame in frames]
+    ['a.xyz', 'b.xyz']
+    """
+    paths = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            paths += sorted(q for q in p.iterdir()
+                            if q.is_file() and not q.name.startswith(".") and q.suffix.lower() in FRAME_SUFFIXES)
+        elif p.exists():
+            paths.append(p)
+        elif any(c in str(item) for c in "*?["):   # a quoted glob pattern
+            matches = sorted(Path(m) for m in glob.glob(str(item)))
+            matches = [m for m in matches if m.is_file() and m.suffix.lower() in (*FRAME_SUFFIXES, ".txt")]
+            if not matches:
+                fail("read_frames", "frame files matching the pattern", f"none for '{item}'")
+            paths += matches
+        else:
+            fail("read_frames", "an existing file, directory or glob pattern", f"'{p}': no such file or directory")
+    if not paths:
+        fail("read_frames", "at least one frame file", f"none in {[str(i) for i in inputs]}")
+    if len(paths) == 1 and paths[0].suffix.lower() == ".npz":
+        return _npz_sequence(paths[0])
+    return [_reader(p) for p in paths]
+
+
+def _npz_sequence(path: Path) -> list:
+    want = "arrays 'vertices' (T, V, 3) and 'faces' (F, 3)"
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            names = sorted(data.files)
+            if "vertices" not in names or "faces" not in names:
+                fail("read_frames", f"{want} in '{path}'", f"arrays {names}")
+            Vs, F = np.asarray(data["vertices"], dtype=np.float64), np.asarray(data["faces"])
+    except (OSError, EOFError) as exc:
+        fail("read_frames", f"a readable NPZ file '{path}'", f"{type(exc).__name__}: {exc}")
+    except ValueError as exc:
+        if str(exc).startswith("read_frames():"):
+            raise
+        fail("read_frames", f"a readable NPZ file '{path}'", f"{type(exc).__name__}: {exc}")
+    if Vs.ndim != 3 or Vs.shape[2] != 3 or len(Vs) == 0 or Vs.shape[1] == 0:
+        fail("read_frames", f"{want} in '{path}', with T > 0", f"vertices of shape {Vs.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        fail("read_frames", f"{want} in '{path}'", f"faces of shape {F.shape} and dtype {F.dtype}")
+    return [(lambda t=t: (f"{path.stem}[{t}]", Vs[t], F, None)) for t in range(len(Vs))]
+
+
+def _reader(p: Path):
+    def read():
+        if p.suffix.lower() in _MESHES or _ply_has_faces(p):
+            V, F = read_mesh(p)
+            return p.name, V, F, None
+        P, N, _ = load_oriented_points(p)
+        return p.name, P, None, N
+    return read
+
+
+def _ply_has_faces(path: Path) -> bool:
+    """Whether a PLY file declares a non-empty face element (header only)."""
+    if path.suffix.lower() != ".ply":
+        return False
+    with open(path, "rb") as f:
+        head = f.read(65536).split(b"end_header")[0]
+    match = re.search(rb"^element face (\d+)", head, flags=re.MULTILINE)
+    return bool(match) and int(match.group(1)) > 0

@@ -1,0 +1,104 @@
+"""Frame sequences (mi_loop.io.frames.read_frames): NPZ sequences, directories, patterns, clear errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mi_loop import datasets, io
+
+from helpers import DATA
+
+
+def error(inputs) -> str:
+    with pytest.raises(ValueError) as info:
+        io.read_frames(inputs)
+    message = str(info.value)
+    assert message.startswith("read_frames(): expected ") and "\n" not in message
+    return message[len("read_frames(): "):]
+
+
+def test_npz_sequence(tmp_path):
+    V, F = datasets.blob()
+    np.savez(tmp_path / "seq.npz", vertices=np.stack([V, 2 * V, 3 * V]).astype(np.float32), faces=F)
+    frames = io.read_frames([tmp_path / "seq.npz"])
+    assert len(frames) == 3
+    name, V2, F2, N = frames[2]()
+    assert name == "seq[2]" and N is None
+    np.testing.assert_array_equal(V2, (3 * V).astype(np.float32))
+    np.testing.assert_array_equal(F2, F)
+
+
+def test_shared_npz_sequence():
+    frames = io.read_frames([DATA / "sequences" / "fox_walk_24f.npz"])
+    name, V, F, _ = frames[23]()
+    assert len(frames) == 24 and name == "fox_walk_24f[23]" and V.shape == (290, 3) and F.shape == (576, 3)
+
+
+def test_npz_without_the_sequence_arrays(tmp_path):
+    P = np.zeros((5, 3))
+    np.savez(tmp_path / "cloud.npz", points=P, normals=P)
+    assert error([tmp_path / "cloud.npz"]) == (
+        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'cloud.npz'}', "
+        "got arrays ['normals', 'points']")
+    np.savez(tmp_path / "novert.npz", faces=np.zeros((1, 3), int))
+    assert error([tmp_path / "novert.npz"]) == (
+        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'novert.npz'}', got arrays ['faces']")
+    np.savez(tmp_path / "flat.npz", vertices=np.zeros((4, 3)), faces=np.zeros((1, 3), int))
+    assert error([tmp_path / "flat.npz"]) == (
+        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'flat.npz'}', with T > 0, "
+        "got vertices of shape (4, 3)")
+    np.savez(tmp_path / "quads.npz", vertices=np.zeros((2, 4, 3)), faces=np.zeros((1, 4), int))
+    assert error([tmp_path / "quads.npz"]) == (
+        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'quads.npz'}', "
+        "got faces of shape (1, 4) and dtype int64")
+    (tmp_path / "bad.npz").write_bytes(b"not a zip file")
+    assert error([tmp_path / "bad.npz"]).startswith(f"expected a readable NPZ file '{tmp_path / 'bad.npz'}', got ")
+
+
+def test_directory_takes_only_mesh_and_point_files(tmp_path):
+    """readme.txt, notes, images, hidden and AppleDouble files are not frames; order is by name."""
+    V, F = datasets.blob()
+    io.write_ply(tmp_path / "f_01.ply", V, F)
+    io.write_ply(tmp_path / "f_00.ply", 2 * V, F)
+    np.savetxt(tmp_path / "f_02.xyz", V)
+    for junk in ("readme.txt", "notes.md", "preview.png", ".DS_Store", "._f_00.ply", ".hidden.xyz"):
+        (tmp_path / junk).write_bytes(b"not a frame\n")
+    (tmp_path / "sub.ply").mkdir()                      # a directory with a frame suffix is not a frame either
+    frames = io.read_frames([tmp_path])
+    assert [frame()[0] for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.xyz"]
+    _, P, F_none, N = frames[2]()
+    assert F_none is None and N is None
+    np.testing.assert_allclose(P, V)
+    np.testing.assert_array_equal(frames[0]()[1], 2 * V)
+
+
+def test_text_frames_given_by_name_or_pattern(tmp_path):
+    """A .txt point cloud is a frame when named explicitly or matched by a glob pattern."""
+    V, _ = datasets.blob()
+    np.savetxt(tmp_path / "scan_0.txt", V)
+    np.savetxt(tmp_path / "scan_1.txt", 2 * V)
+    frames = io.read_frames([tmp_path / "scan_1.txt"])
+    np.testing.assert_allclose(frames[0]()[1], 2 * V)
+    frames = io.read_frames([str(tmp_path / "scan_*.txt")])
+    assert [frame()[0] for frame in frames] == ["scan_0.txt", "scan_1.txt"]
+
+
+def test_mixed_frame_kinds(tmp_path):
+    V, F = datasets.blob()
+    io.write_ply(tmp_path / "a.ply", V, F)
+    (tmp_path / "b.obj").write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+                                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    P = V + 0.01
+    np.savez(tmp_path / "c.npz", points=P, normals=V)
+    frames = io.read_frames([tmp_path / "a.ply", tmp_path / "b.obj", tmp_path / "c.npz"])
+    kinds = [(name, F_ is None, N is None) for name, _, F_, N in (frame() for frame in frames)]
+    assert kinds == [("a.ply", False, True), ("b.obj", False, True), ("c.npz", True, False)]
+    np.testing.assert_array_equal(frames[1]()[2], F)
+
+
+def test_missing_inputs_named(tmp_path):
+    assert error([tmp_path / "nope"]) == f"expected an existing file, directory or glob pattern, got '{tmp_path / 'nope'}': no such file or directory"
+    assert error([str(tmp_path / "f_*.ply")]) == f"expected frame files matching the pattern, got none for '{tmp_path / 'f_*.ply'}'"
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.txt").write_text("frames go here")
+    assert error([tmp_path / "empty"]) == f"expected at least one frame file, got none in ['{tmp_path / 'empty'}']"
