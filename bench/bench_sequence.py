@@ -201,8 +201,8 @@ def cost_part(args):
     from mi_loop.mesh.sampling import sample_surface
     from mi_loop.ad.operator import LimitOperator
     from mi_loop.fitting.sequence import SequenceOptions
-from mi_loop.mesh.geometry import vertex_normals
-from mi_loop.render.multiview import Renderer
+    from mi_loop.mesh.geometry import vertex_normals
+    from mi_loop.render.multiview import Renderer
     from mi_loop.fitting.template import mesh_template
     from mi_loop.render.variant import set_variant
 
@@ -387,8 +387,8 @@ def probe_part(args):
     from mi_loop.metrics import two_sided
     from mi_loop.ad.operator import LimitOperator
     from mi_loop.fitting.sequence import SequenceOptions
-from mi_loop.mesh.geometry import vertex_normals
-from mi_loop.render.multiview import Renderer
+    from mi_loop.mesh.geometry import vertex_normals
+    from mi_loop.render.multiview import Renderer
     from mi_loop.render.variant import set_variant
 
     set_variant("llvm_ad_rgb")

@@ -1,151 +1,161 @@
-"""The ``mi-loop fit`` and ``mi-loop compare`` jobs: read, fit, measure, draw, write.
+"""The ``mi-loop fit`` job: read, fit, measure, draw, write.
 
 Everything is computed before the first output file is written; the files are
 written into a staging directory and moved into place together, so a failed or
 interrupted run leaves no partial output (and removes the directories it created).
+
+``report.json`` holds ``input`` and ``input_info`` (what was read, whether
+normals were estimated), ``params`` (the options actually used), ``converged``,
+``timings_s``, ``metrics`` (two-sided distances to the data, relative to its
+bounding-box diagonal), ``template`` (its source; for ``--template`` the
+polygons split into triangles and its size and offset relative to the data),
+``final_energy``, ``machine``, ``variant``; with ``--demo`` also
+``metrics_clean`` (the same distances to the noise-free torus).
 """
 from __future__ import annotations
 
 import json
 import platform
 import time
+from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from mi_loop import io
+from mi_loop.fitting.options import FitOptions
+from mi_loop.render.variant import DEFAULT_VARIANT
+
+__all__ = ["OUTPUTS", "run"]
+
+#: The files ``mi-loop fit`` writes into OUTDIR, in this order.
+OUTPUTS = ("control.ply", "limit.ply", "report.json", "loss.png", "render.png")
+
+_TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha"}
 
 
-def load_input(path: Path, say):
-    """Oriented points of INPUT (normals estimated when missing) and a render target."""
-    from mi_loop.io.points import load_oriented_points
-    from mi_loop.mesh.points import estimate_normals
+def _load(input: Path | None, log):
+    """``(P, N, target, info, clean)``: the data, its picture target, what was read, the clean demo surface."""
+    if input is None:
+        from mi_loop.datasets import noisy_torus_points
 
-    P, N, info = load_oriented_points(path)
-    if N is None:
-        say(f"{path.name}: {len(P)} points without normals: estimating and orienting normals")
-        N = estimate_normals(P)
-        info["normals_estimated"] = True
-    target = ("points", P, N)
-    if info.get("kind") == "mesh":
-        V, F = io.read_mesh(path)
-        target = ("mesh", V, F)
-    return P, N, target, info
+        P, N, clean = noisy_torus_points()
+        log.say(f"built-in noisy torus: {len(P)} points (0.5% noise, 1% outliers)")
+        return P, N, ("points", P, N), {"kind": "points", "source": "built-in noisy torus",
+                                        "n_points": len(P)}, clean
+    from mi_loop.app.inputs import load_input
 
-
-def _progress(quiet: bool):
-    if quiet:
-        return None, lambda: None
-    from tqdm import tqdm
-
-    bars = []   # created at the first iteration, so early errors print one line only
-
-    def update(i, total, energy):
-        if not bars:
-            bars.append(tqdm(total=total, desc="fitting", unit="it", leave=False, dynamic_ncols=True))
-        bars[0].set_postfix_str(f"E={energy:.3e}", refresh=False)
-        bars[0].update(i - bars[0].n)
-
-    return update, lambda: bars and bars[0].close()
+    P, N, target, info = load_input(input, log)
+    log.say(f"{input.name}: {len(P)} oriented points")
+    return P, N, target, info, None
 
 
-def run(args, start, say):
-    """Run ``mi-loop fit``; return the written paths."""
-    from mi_loop.datasets import noisy_torus_points
+def _stage_line(options: FitOptions) -> str:
+    """The terms actually on, with their weights: ``IMLS + 3 x coverage + 0.001 x ARAP``."""
+    parts = [name if weight is None else f"{getattr(options, weight):g} x {name}"
+             for name, weight in _TERM_WEIGHTS.items() if name in options.terms]
+    return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}"
+
+
+def _fit(P, N, template, options: FitOptions, log):
+    """Run :func:`~mi_loop.fitting.static.fit` with a progress bar; ``(result, converged)``."""
     from mi_loop.fitting.static import fit
+
+    log.say(_stage_line(options))
+    with log.bar("fitting") as update:
+        result = fit(P, N, template=template, progress=lambda i, n, E: update(i, n, f"E={E:.3e}"),
+                     **asdict(options))
+    n = result.params["iterations"]
+    # TODO(lead): a FitResult flag would be exact; iterations skipped by a divergence recovery
+    # are not in the history, so a run that recovered and then hit the cap reads as converged.
+    converged = n < options.max_iterations
+    how = (f"converged after {n} iterations (best energy improved by less than {options.tolerance:g})"
+           if converged else f"stopped at the iteration cap ({n}) before converging; raise --iterations")
+    log.say(f"fitted {len(result.V)} control vertices: {how} ({result.timings['total']:.1f} s)")
+    return result, converged
+
+
+def _measure(result, target, P, clean, seed, log):
+    """Two-sided distances to the data (and to the clean demo surface); ``(metrics, clean_metrics, limit)``."""
     from mi_loop.metrics import two_sided
-    from mi_loop.app.report import loss_plot, side_by_side
+
+    t = time.perf_counter()
+    V_lim, F_lim, N_lim = result.limit_mesh(3)
+    metrics = two_sided(V_lim, F_lim, P if target[0] == "points" else target[1],
+                        None if target[0] == "points" else target[2], seed=seed)
+    log.say(f"distance to the data (relative to its bbox diagonal): mean {metrics['mean']:.2e}, "
+            f"RMS {metrics['rms']:.2e}, Hausdorff {metrics['hausdorff']:.2e}")
+    metrics_clean = None
+    if clean is not None:
+        metrics_clean = two_sided(V_lim, F_lim, clean, seed=seed)
+        log.say(f"distance to the clean torus (without noise and outliers): mean "
+                f"{metrics_clean['mean']:.2e}, RMS {metrics_clean['rms']:.2e}, "
+                f"Hausdorff {metrics_clean['hausdorff']:.2e}")
+    result.timings["metrics"] = time.perf_counter() - t
+    return metrics, metrics_clean, (V_lim, F_lim, N_lim)
+
+
+def _report(input, info, result, converged, metrics, metrics_clean, template_info, variant):
+    report = {"input": str(input) if input is not None else info["source"], "input_info": info,
+              "params": result.params, "converged": converged, "timings_s": result.timings,
+              "metrics": metrics, "template": template_info or result.info["template"],
+              "machine": platform.node(), "variant": variant,
+              "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "total")}}
+    if metrics_clean is not None:
+        report["metrics_clean"] = metrics_clean
+        report["metrics_note"] = ("metrics: distances to the noisy input points (outliers included); "
+                                  "metrics_clean: to the noise-free torus the points were drawn from")
+    return report
+
+
+def run(input: Path | None, output: Path, options: FitOptions, *, template: Path | None = None,
+        variant: str = DEFAULT_VARIANT, log) -> list:
+    """Run ``mi-loop fit``: fit ``input`` (None: the built-in noisy torus), write OUTDIR.
+
+    Parameters
+    ----------
+    input : pathlib.Path or None
+        Points or mesh file; None fits the demo torus.
+    output : pathlib.Path
+        OUTDIR (created).
+    options : FitOptions
+    template : pathlib.Path, optional
+        Control mesh to start from (checked against the data's frame).
+    variant : str
+        Mitsuba variant.
+    log : mi_loop.app.progress.Reporter
+
+    Returns
+    -------
+    list of pathlib.Path
+        The written files (:data:`OUTPUTS` in OUTDIR), also printed by ``log``.
+    """
+    from mi_loop.app.report import loss_plot, plain, side_by_side
     from mi_loop.render.variant import set_variant
 
-    if args.vertices is not None and args.template is None and args.vertices < 4:
-        raise ValueError(f"fit: --vertices must be at least 4, got {args.vertices}")
-    if args.demo:
-        P, N, clean = noisy_torus_points()
-        target, info = ("points", P, N), {"kind": "points", "source": "built-in noisy torus",
-                                          "n_points": len(P)}
-        say(f"built-in noisy torus: {len(P)} points (0.5% noise, 1% outliers)", start)
-    else:
-        P, N, target, info = load_input(args.input, lambda m: say(m, start))
-        say(f"{args.input.name}: {len(P)} oriented points", start)
-    template = None
-    if args.template is not None:
-        from mi_loop.mesh.topology import validate_mesh
+    P, N, target, info, clean = _load(input, log)
+    V_t = template_info = None
+    if template is not None:
+        from mi_loop.app.inputs import read_template
 
-        V_t, F_t = io.read_mesh(args.template)
-        validate_mesh(V_t, F_t, f"--template {args.template}")
-        template = (V_t, F_t)
-    created = io.first_missing_ancestor(args.output)
-    out = io.ensure_writable_dir(args.output)
+        V_t, F_t, template_info = read_template(template, P, f"fit --template '{template}'", log)
+    created = io.first_missing_ancestor(output)
+    out = io.ensure_writable_dir(output)
     try:
-        set_variant("llvm_ad_rgb")
-        say("fitting (template, limit operator, IMLS + ARAP with Adam)", start)
-        update, close = _progress(args.quiet)
-        try:
-            result = fit(P, N, n_vertices=args.vertices, template=template, alpha=args.alpha,
-                         h0=args.h0, samples=args.samples, max_iterations=args.iterations,
-                         cover=args.cover, seed=args.seed, progress=update)
-        finally:
-            close()
-        say(f"fitted {len(result.V)} control vertices in {result.params['iterations']} iterations "
-            f"({result.timings['total']:.1f} s)", start)
+        set_variant(variant)
+        result, converged = _fit(P, N, None if V_t is None else (V_t, F_t), options, log)
+        metrics, metrics_clean, limit = _measure(result, target, P, clean, options.seed, log)
         t = time.perf_counter()
-        V_lim, F_lim, N_lim = result.limit_mesh(3)
-        metrics = two_sided(V_lim, F_lim, P if target[0] == "points" else target[1],
-                            None if target[0] == "points" else target[2], seed=args.seed)
-        result.timings["metrics"] = time.perf_counter() - t
-        say(f"distance to the data (relative to bbox diagonal): mean {metrics['mean']:.2e}, "
-            f"RMS {metrics['rms']:.2e}, Hausdorff {metrics['hausdorff']:.2e}", start)
-        t = time.perf_counter()
-        loss = loss_plot(result.history)
-        render = side_by_side(target, result.V, result.F)
+        loss, render = loss_plot(result.history), side_by_side(target, result.V, result.F)
         result.timings["pictures"] = time.perf_counter() - t
-        report = {"input": str(args.input) if args.input else info["source"], "input_info": info,
-                  "params": result.params, "timings_s": result.timings, "metrics": metrics,
-                  "template": result.info["template"], "machine": platform.node(),
-                  "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "total")}}
+        report = _report(input, info, result, converged, metrics, metrics_clean, template_info, variant)
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F)
-            io.write_ply(stage / "limit.ply", V_lim, F_lim, normals=N_lim)
-            io.write_text(stage / "report.json", json.dumps(_plain(report), indent=2) + "\n")
+            io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2])
+            io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
             io.write_png(stage / "loss.png", loss)
             io.write_png(stage / "render.png", render)
     except BaseException:
         io.remove_if_empty(created, out)
         raise
-    return [out / name for name in ("control.ply", "limit.ply", "report.json", "loss.png", "render.png")]
-
-
-def _plain(x):
-    """JSON-friendly copy (NumPy scalars and arrays to Python)."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
-
-
-def compare(fitted: Path, target: Path, plain_mesh: bool = False) -> dict:
-    """Distances between FITTED (limit surface of a control mesh, or a mesh) and TARGET."""
-    from mi_loop.io.points import load_oriented_points
-    from mi_loop.subdiv.masks import limit_mesh
-    from mi_loop.metrics import nps_metrics, two_sided
-    from mi_loop.mesh.topology import validate_mesh
-
-    V, F = io.read_mesh(fitted)
-    if not plain_mesh:
-        V, F, _ = validate_mesh(V, F, f"compare: {fitted}")
-        V, F, _ = limit_mesh(V, F, level=3)
-    P, _, info = load_oriented_points(target)
-    out = {"two_sided": None, "nps": None}
-    if info.get("kind") == "mesh":
-        Vt, Ft = io.read_mesh(target)
-        out["two_sided"] = two_sided(V, F, Vt, Ft)
-        out["nps"] = nps_metrics((V, F), (Vt, Ft))
-    else:
-        out["two_sided"] = two_sided(V, F, P)
-        del out["nps"]
-    return _plain(out)
+    paths = [out / name for name in OUTPUTS]
+    log.wrote(*paths)
+    return paths

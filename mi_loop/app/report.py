@@ -1,41 +1,85 @@
-"""Pictures of a fit as pixel arrays: energy curves and side-by-side renders (no file I/O)."""
+"""Reports of a fit as data: pictures as pixel arrays (energy curves, drift, renders), JSON-ready dicts.
+
+No file I/O. Figures are drawn on Matplotlib's ``Figure`` with the Agg canvas
+(:class:`~matplotlib.backends.backend_agg.FigureCanvasAgg`): ``pyplot`` is
+never imported, so the calling program's backend and figures are untouched.
+"""
 from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["LOSS_TERMS", "drift_figure", "figure_pixels", "loss_figure", "loss_plot", "plain",
+           "side_by_side", "splat_mesh", "strip_figure"]
+
+#: History keys of :attr:`mi_loop.fitting.static.FitResult.history` drawn by :func:`loss_figure`, and labels.
+LOSS_TERMS = {"imls": "IMLS (mean f^2)", "cover": "cover * coverage", "arap": "alpha * ARAP / n"}
+
+
+def plain(x):
+    """JSON-friendly copy of ``x`` (NumPy scalars and arrays, tuples and paths to Python)."""
+    from pathlib import PurePath
+
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, PurePath):
+        return str(x)
+    return x
+
+
+def _figure(width: float, height: float):
+    """A Matplotlib ``Figure`` on an Agg canvas (no pyplot, no backend switch)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), dpi=100)
+    FigureCanvasAgg(fig)
+    return fig
+
 
 def figure_pixels(fig) -> np.ndarray:
-    """Rasterise a Matplotlib figure to an ``(h, w, 3)`` uint8 array and close it."""
-    import matplotlib.pyplot as plt
+    """Rasterise a Matplotlib figure to an ``(h, w, 3)`` uint8 array."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    fig.canvas.draw()
-    pixels = np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
-    plt.close(fig)
-    return pixels
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
 
 
-def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
-    """Plot the energy terms of :attr:`mi_loop.fit.FitResult.history` (log scale).
+def loss_figure(history: dict, title: str = "energy per iteration"):
+    """Figure of the energy terms of :attr:`mi_loop.fitting.static.FitResult.history` (log scale).
+
+    The total is a wide grey band underneath, every non-zero term a line on
+    top of it, so a term that makes up the whole total (often the coverage
+    term) stays visible.
+
+    Parameters
+    ----------
+    history : dict of lists
+        ``total`` and the terms of :data:`LOSS_TERMS`, one value per iteration.
+    title : str
 
     Returns
     -------
-    (h, w, 3) uint8 numpy array
+    matplotlib.figure.Figure
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=100)
+    fig = _figure(6.4, 4.0)
+    ax = fig.add_subplot()
     it = np.arange(1, len(history["total"]) + 1)
-    styles = {"total": {"color": "black", "linestyle": "--", "zorder": 3}}   # on top of the term it follows
-    for key, label in (("total", "total E"), ("imls", "IMLS (mean f^2)"), ("cover", "cover * coverage"),
-                       ("arap", "alpha * ARAP / n")):
+    total = np.asarray(history["total"])
+    ax.semilogy(it, np.maximum(total, 1e-30), color="0.6", linewidth=6, alpha=0.5, solid_capstyle="butt",
+                label="total E", zorder=1)
+    for key, label in LOSS_TERMS.items():
         values = np.asarray(history.get(key, []))
         if len(values) and (values > 0).any():
-            ax.semilogy(it, np.maximum(values, 1e-30), label=label, **styles.get(key, {}))
-    floor = min(np.min(np.asarray(history[k])[np.asarray(history[k]) > 0], initial=np.inf)
-                for k in ("total", "imls"))
+            ax.semilogy(it, np.maximum(values, 1e-30), linewidth=1.5, label=label, zorder=2)
+    positive = [np.asarray(history[k]) for k in ("total", "imls") if k in history]
+    floor = min((np.min(v[v > 0], initial=np.inf) for v in positive), default=np.inf)
     if np.isfinite(floor):
         ax.set_ylim(bottom=floor / 10)
     ax.set_xlabel("iteration")
@@ -44,7 +88,63 @@ def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    return figure_pixels(fig)
+    return fig
+
+
+def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
+    """:func:`loss_figure` as an ``(h, w, 3)`` uint8 numpy array."""
+    return figure_pixels(loss_figure(history, title))
+
+
+def drift_figure(frames, mean, rms):
+    """Per-frame error of a sequence: mean and RMS distance per frame, integer frame ticks.
+
+    Parameters
+    ----------
+    frames : (T,) int array-like
+    mean, rms : (T,) float array-like
+        Distances relative to the target's bounding-box diagonal.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.ticker import MaxNLocator
+
+    fig = _figure(6.4, 3.6)
+    ax = fig.add_subplot()
+    ax.plot(frames, mean, "o-", label="mean")
+    ax.plot(frames, rms, "s-", label="RMS")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("frame")
+    ax.set_ylabel("distance to target / bbox diagonal")
+    ax.set_title("per-frame error (drift)")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def strip_figure(strips):
+    """Target and fit side by side for a few frames, one row each.
+
+    Parameters
+    ----------
+    strips : list of ``(frame, mean, image)``
+        ``image`` from :func:`side_by_side`.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure(4.0, 2.1 * len(strips))
+    axes = fig.subplots(len(strips), 1, squeeze=False)
+    for ax, (t, mean, image) in zip(axes[:, 0], strips):
+        ax.imshow(image)
+        ax.set_axis_off()
+        ax.set_title(f"frame {t}: target (left), fit (right); mean {mean:.1e}", fontsize=8)
+    fig.tight_layout()
+    return fig
 
 
 def splat_mesh(P: np.ndarray, N: np.ndarray, radius: float):

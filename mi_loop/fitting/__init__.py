@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+from mi_loop.fitting.options import FitOptions, SequenceOptions
 from mi_loop.fitting.static import fit
 
-__all__ = ["fit"]
+__all__ = ["FitOptions", "SequenceOptions", "fit"]

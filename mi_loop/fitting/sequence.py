@@ -17,60 +17,13 @@ I/O here.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from mi_loop.render.multiview import IMAGE_MODES, LOSSES
+from mi_loop.errors import FitError
+from mi_loop.fitting.options import SequenceOptions
 
-@dataclass
-class SequenceOptions:
-    """Parameters of :func:`fit_frame` (defaults tuned on 2 CPU cores)."""
-
-    alpha: float = 0.01          # ARAP weight
-    beta: float = 1.0            # image-loss weight
-    views: int = 20              # cameras in the rig
-    views_per_iteration: int = 2
-    resolution: int = 96
-    spp: int = 4                 # samples per pixel of the differentiable renders
-    target_spp: int = 32         # samples per pixel of the target renders
-    level: int = 1               # tessellation level of the rendered limit surface
-    loss: str = "l1"
-    mode: str = "shading"        # or 'silhouette'
-    geometric: bool = True       # IMLS + ARAP terms (False: image only, ARAP kept)
-    image: bool = True           # image term
-    geo_iterations: int = 200    # geometric iterations per frame (first half with stiff ARAP)
-    joint_iterations: int = 8    # iterations with the image term per frame
-    joint_lr_scale: float = 0.05  # step of the joint iterations relative to the geometric ones
-    stiff_factor: float = 100.0  # ARAP weight factor for the first half of the geometric iterations
-    cover: float = 3.0           # weight of the coverage term (data points pull their nearest samples)
-    seed: int = 0
-
-    def __post_init__(self):
-        for name in ("alpha", "beta", "cover", "stiff_factor"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"SequenceOptions: {name} must be a finite number >= 0, got {value}")
-        if not (np.isfinite(self.joint_lr_scale) and self.joint_lr_scale > 0):
-            raise ValueError(f"SequenceOptions: joint_lr_scale must be a finite number > 0, "
-                             f"got {self.joint_lr_scale}")
-        if self.loss not in LOSSES:
-            raise ValueError(f"SequenceOptions: loss must be one of {LOSSES}, got {self.loss!r}")
-        if self.mode not in IMAGE_MODES:
-            raise ValueError(f"SequenceOptions: mode must be one of {IMAGE_MODES}, got {self.mode!r}")
-        if not 1 <= self.views_per_iteration <= self.views:
-            raise ValueError(f"SequenceOptions: views_per_iteration must be in [1, views={self.views}], "
-                             f"got {self.views_per_iteration}")
-        if not (self.geometric or self.image):
-            raise ValueError("SequenceOptions: geometric and image terms are both off; nothing to fit")
-
-    @property
-    def rig(self):
-        """The :class:`~mi_loop.render.multiview.RigOptions` of the image term."""
-        from mi_loop.render.multiview import RigOptions
-
-        return RigOptions(views=self.views, resolution=self.resolution, spp=self.spp,
-                          target_spp=self.target_spp, level=self.level, loss=self.loss, mode=self.mode)
+__all__ = ["SequenceOptions", "fit_frame"]   # SequenceOptions lives in mi_loop.fitting.options
 
 
 def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOptions,
@@ -82,6 +35,7 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     import drjit as dr
     import mitsuba as mi
 
+    from mi_loop.ad.control import ControlPoints
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
@@ -104,8 +58,8 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     history = {"geo": [], "image": []}
     t_render = 0.0
     for it in range(n_geo + n_joint):
-        x = opt["x"]
-        Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
+        x = ControlPoints(opt["x"])       # shared by ARAP, the limit operator and the renders
+        Vn = x.numpy()
         # Stiff-to-soft: the first half of the geometric iterations weigh ARAP
         # (relative to the previous frame) by stiff_factor, so parts that moved
         # far (thin horns, legs) follow the bulk as near-rigid pieces instead of
@@ -133,7 +87,8 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
             image = renderer.backward(x, views, targets, seed=frame * 1000 + it, weight=options.beta)
             t_render += time.perf_counter() - t
         if not np.isfinite(geo) or not np.isfinite(image if it >= n_geo else 0.0):
-            raise FloatingPointError(f"fit_frame(): non-finite energy at frame {frame}, iteration {it}")
+            raise FitError(f"fit_frame(): expected a finite energy, got geometric {geo}, image {image} "
+                           f"at frame {frame}, iteration {it} (the optimisation diverged)")
         history["geo"].append(geo)
         history["image"].append(image)
         opt.step()

@@ -13,17 +13,10 @@ import numpy as np
 from mi_loop.subdiv.masks import limit_mesh, vertex_samples
 from mi_loop.subdiv.tessellation import tessellate
 from mi_loop.errors import FitError
+from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, OptionError
 from mi_loop.mesh.checks import check_oriented_points
 from mi_loop.mesh.geometry import mean_edge_length
 from mi_loop.mesh.topology import validate_mesh
-
-SAMPLE_MODES = ("vertices", "level1", "random")
-
-#: Default ARAP weight. The energy here is ``mean f^2 + alpha E_arap / n``; on the
-#: bunny and fandisk benchmarks 0.001 fits closer than the thesis's 0.01 (which
-#: suits its differently normalised sums); raise it for noisy data.
-DEFAULT_ALPHA = 0.001
-DEFAULT_COVER = 3.0
 
 
 @dataclass
@@ -101,16 +94,19 @@ def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
     raise ValueError(f"fit(): samples must be one of {SAMPLE_MODES}, got {mode!r}")
 
 
-def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float | None = None,
-        h0: float | None = None, samples: str = "level1", max_iterations: int = 400,
-        tolerance: float = 5e-3, cover: float = DEFAULT_COVER, seed: int = 0, progress=None) -> FitResult:
+def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=None,
+        alpha: float = FitOptions.alpha, h0: float | None = FitOptions.h0, samples: str = FitOptions.samples,
+        max_iterations: int = FitOptions.max_iterations, tolerance: float = FitOptions.tolerance,
+        cover: float = FitOptions.cover, seed: int = FitOptions.seed, progress=None) -> FitResult:
     """Fit a Loop control mesh to oriented points.
 
     Minimises ``E = mean_j f(Q_j)^2 + cover * E_cover + alpha * E_arap(V0) / n``
     over the control points ``V0`` where ``Q = W V0`` are exact limit samples,
     ``f`` is the IMLS function of the data (Xie 2022, eqs. 8-13) and
     ``E_cover`` the data-to-sample coverage term (:mod:`mi_loop.energies.coverage`),
-    with Adam (Dr.Jit).
+    with Adam (Dr.Jit). The keyword arguments are the fields of
+    :class:`~mi_loop.fitting.options.FitOptions` (defaults and checks there),
+    so ``fit(P, N, **dataclasses.asdict(options))`` runs ``options``.
 
     Parameters
     ----------
@@ -122,8 +118,8 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
         Control vertices of the automatic template (ignored with ``template``).
     template : tuple ``(V, F)``, optional
         Control mesh to start from, in the data's units.
-    alpha : float, optional
-        ARAP weight; default :data:`DEFAULT_ALPHA` (0.001).
+    alpha : float
+        ARAP weight (default 0.001; raise it for noisy data).
     h0 : float, optional
         IMLS support radius in the unit box; automatic from the point spacing.
     samples : {'vertices', 'level1', 'random'}
@@ -140,8 +136,7 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
     cover : float
         Weight of the coverage term (:mod:`mi_loop.energies.coverage`): every data
         point pulls its nearest limit sample along its normal, so thin parts
-        of the data are not left uncovered; default :data:`DEFAULT_COVER`
-        (3). 0 turns it off.
+        of the data are not left uncovered (default 3). 0 turns it off.
     seed : int
         Seed for random sampling.
     progress : callable, optional
@@ -154,8 +149,10 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
     Raises
     ------
     ValueError
-        Invalid data or template. :class:`FitError` if the optimisation
-        diverges (non-finite energy) and cannot recover.
+        Invalid data, options or template
+        (:class:`~mi_loop.fitting.options.OptionError` for an option).
+    FitError
+        If the optimisation diverges (non-finite energy) and cannot recover.
     """
     import drjit as dr
     import mitsuba as mi
@@ -168,7 +165,12 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
     t_all = time.perf_counter()
     timings = {}
     P, N = check_oriented_points(points, normals, "fit")
-    _check_parameters(template, alpha, max_iterations, tolerance, samples, cover)
+    try:
+        FitOptions(n_vertices=n_vertices, alpha=alpha, h0=h0, samples=samples, max_iterations=max_iterations,
+                   tolerance=tolerance, cover=cover, seed=seed)
+    except OptionError as exc:
+        raise exc.renamed("fit") from None
+    _check_template(template)
     norm = Normalisation.of(P)
     Pn = norm.forward(P)
 
@@ -193,7 +195,7 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
     imls = IMLS(Pn, N, h0=h0)
     coverage = Coverage(Pn, N, tree=imls.tree) if cover > 0 else None
     arap = ARAP(V0, F)
-    alpha = DEFAULT_ALPHA if alpha is None else float(alpha)
+    alpha = float(alpha)
     timings["energies"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -209,21 +211,10 @@ def fit(points, normals, *, n_vertices: int = 1000, template=None, alpha: float 
                      {"template": tinfo})
 
 
-def _check_parameters(template, alpha, max_iterations, tolerance, samples, cover):
+def _check_template(template):
     if template is not None and not (isinstance(template, (tuple, list)) and len(template) == 2):
-        raise ValueError("fit(): template must be a pair (V, F) of control points and faces, got "
+        raise ValueError("fit(): expected template to be a pair (V, F) of control points and faces, got "
                          f"{type(template).__name__}")
-    if alpha is not None and not (np.isfinite(alpha) and alpha >= 0):
-        raise ValueError(f"fit(): alpha must be a finite number >= 0, got {alpha}")
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) \
-            or max_iterations < 1:
-        raise ValueError(f"fit(): max_iterations must be an integer >= 1, got {max_iterations!r}")
-    if not (np.isfinite(tolerance) and tolerance >= 0):
-        raise ValueError(f"fit(): tolerance must be a finite number >= 0, got {tolerance}")
-    if samples not in SAMPLE_MODES:
-        raise ValueError(f"fit(): samples must be one of {SAMPLE_MODES}, got {samples!r}")
-    if not (np.isfinite(cover) and cover >= 0):
-        raise ValueError(f"fit(): cover must be a finite number >= 0, got {cover}")
 
 
 def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, coverage=None, cover=0.0):
@@ -239,6 +230,8 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
     """
     import drjit as dr
     import mitsuba as mi
+
+    from mi_loop.ad.control import ControlPoints
 
     n = len(V0)
     alpha_t = dr.opaque(mi.Float, alpha / n)
@@ -258,9 +251,9 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
     lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-6, 0.05 * mean_edge_length(V0, arap.F)))
     opt = dr.opt.Adam(lr=lr, params={"x": x0})
     for it in range(max_iterations):
-        x = opt["x"]
+        x = ControlPoints(opt["x"])       # shared by the limit operator and ARAP
         Q = op.positions(x)
-        Vn = np.array(x, dtype=np.float64).reshape(-1, 3)
+        Vn = x.numpy()
         Qn = np.array(Q, dtype=np.float64).T
         if np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
             imls.update(Qn)

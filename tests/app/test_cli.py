@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import one_line_error
 from matplotlib import image as mpl_image
 
 import mi_loop
@@ -18,7 +19,7 @@ MI_LOOP = Path(sys.executable).with_name("mi-loop")
 
 def run(*args, timeout=300):
     return subprocess.run([str(MI_LOOP), *args], capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
+                          stdin=subprocess.DEVNULL, check=False)
 
 
 def test_demo_writes_control_limit_and_render(tmp_path):
@@ -50,17 +51,8 @@ def test_console_script_error_is_one_line(tmp_path):
     result = run("demo", "-o", str(tmp_path / "file" / "out"))
     assert result.returncode == 1
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
-    assert result.stderr.startswith("mi-loop: error: cannot write to directory")
-
-
-def one_line_error(capsys, argv, status=1):
-    code = main(argv)
-    captured = capsys.readouterr()
-    assert code == status
-    lines = [line for line in captured.err.splitlines() if not line.startswith("[mi-loop")]
-    assert len(lines) == 1, captured.err
-    assert lines[0].startswith("mi-loop: error: ")
-    return lines[0]
+    assert result.stderr.startswith("mi-loop: error: ensure_writable_dir(): expected a directory that files can "
+                                    f"be created in, got '{tmp_path / 'file' / 'out'}'")
 
 
 def test_render_missing_control_mesh(tmp_path, capsys):
@@ -71,7 +63,7 @@ def test_render_missing_control_mesh(tmp_path, capsys):
 
 def test_render_rejects_non_png_output(tmp_path, capsys):
     line = one_line_error(capsys, ["render", "x.ply", "-o", str(tmp_path / "o.jpg")])
-    assert "output must be a .png file" in line
+    assert line == f"mi-loop: error: render --output: expected a .png file, got '{tmp_path / 'o.jpg'}'"
 
 
 def test_render_rejects_bad_creases(tmp_path, capsys):
@@ -116,3 +108,110 @@ def test_usage_errors_are_one_line(capsys, argv, message):
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and err.startswith("mi-loop")
+
+
+# -- global options: --version, --debug / MI_LOOP_TRACEBACK, --quiet, --variant -------
+
+
+def test_version_names_mi_loop_mitsuba_and_drjit_without_importing_them():
+    from importlib import metadata
+
+    code = ("import sys\nfrom mi_loop.app.cli import main\n"
+            "try:\n    main(['--version'])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
+            "print('imported' if {'mitsuba', 'drjit'} & set(sys.modules) else 'not imported')\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    first, second = result.stdout.splitlines()
+    assert first == (f"mi-loop {mi_loop.__version__} (mitsuba {metadata.version('mitsuba')}, "
+                     f"drjit {metadata.version('drjit')})")
+    assert second == "not imported"
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_shows_the_traceback_behind_the_one_line_error(tmp_path, capsys, where):
+    argv = ["render", str(tmp_path / "nope.ply"), "-o", str(tmp_path / "o.png")]
+    assert main(["--debug", *argv] if where == "before" else [*argv, "--debug"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback (most recent call last):")
+    assert "ValueError: read_mesh(): " in err                               # the exception behind it
+    assert err.splitlines()[-1] == (f"mi-loop: error: read_mesh(): expected an existing file, got "
+                                    f"'{tmp_path / 'nope.ply'}': no such file")
+
+
+def test_the_environment_variable_shows_the_traceback_too(tmp_path, capsys, monkeypatch):
+    argv = ["render", str(tmp_path / "nope.ply"), "-o", str(tmp_path / "o.png")]
+    monkeypatch.setenv("MI_LOOP_TRACEBACK", "1")
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback (most recent call last):") and err.splitlines()[-1].startswith("mi-loop: error: ")
+    monkeypatch.setenv("MI_LOOP_TRACEBACK", "0")                           # 0 or unset: one line only
+    one_line_error(capsys, argv)
+
+
+@pytest.mark.parametrize("command", [["demo", "-o", "x"], ["render", "c.ply", "-o", "x.png"],
+                                     ["fit", "--demo", "-o", "x"], ["fit-sequence", "f.npz", "-o", "x"],
+                                     ["compare", "a.ply", "b.ply"], ["control", "blob", "-o", "x.ply"]])
+def test_every_command_accepts_quiet_and_debug_before_or_after_it(command):
+    from mi_loop.app.parser import build_parser
+
+    parser = build_parser()
+    for argv in ([*command, "--quiet"], ["--quiet", *command]):
+        args = parser.parse_args(argv)
+        assert args.quiet is True and args.debug is False
+    assert parser.parse_args(command).quiet is False
+
+
+def test_quiet_silences_progress_but_not_the_written_paths(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out), "--resolution", "16", "--spp", "1", "--level", "1", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    assert captured.out.split() == [str(out / n) for n in ("control.ply", "limit.ply", "render.png")]
+
+
+@pytest.mark.parametrize("command", [["demo", "-o", "{out}"], ["render", "{out}.ply", "-o", "{out}.png"],
+                                     ["fit", "--demo", "-o", "{out}"], ["fit-sequence", "{out}.npz", "-o", "{out}"]])
+def test_an_unknown_variant_is_refused_with_the_usable_ones(tmp_path, capsys, command):
+    from mi_loop.render.variant import jit_ad_variants
+
+    out = str(tmp_path / "out")
+    line = one_line_error(capsys, [c.format(out=out) for c in command] + ["--variant", "scalar_rgb"])
+    name = command[0]
+    assert line == (f"mi-loop: error: {name} --variant: expected one of {', '.join(jit_ad_variants())}, "
+                    "got 'scalar_rgb'")
+    assert "llvm_ad_rgb" in line
+    assert list(tmp_path.iterdir()) == []                                   # refused before any work
+
+
+def test_the_default_variant_is_the_package_default():
+    from mi_loop.app.parser import build_parser
+    from mi_loop.render.variant import DEFAULT_VARIANT
+
+    parser = build_parser()
+    for argv in (["demo", "-o", "x"], ["render", "c.ply", "-o", "x.png"], ["fit", "--demo", "-o", "x"],
+                 ["fit-sequence", "f.npz", "-o", "x"]):
+        assert parser.parse_args(argv).variant == DEFAULT_VARIANT
+
+
+def test_every_option_has_help_and_seed_loss_points_random_are_explained(capsys):
+    import argparse
+
+    from mi_loop.app.parser import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    for name, sub in commands.items():
+        for action in sub._actions:
+            if action.option_strings and action.dest not in ("help", "shape", "name"):
+                assert action.help, (name, action.option_strings)
+    texts = {}
+    for command in ("fit", "fit-sequence"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        texts[command] = " ".join(capsys.readouterr().out.split())
+        assert "'random' four uniformly random points per control face, drawn once from --seed" in texts[command]
+        assert "--seed SEED random seed: of the automatic template's sampling and of --samples random" in texts[command]
+    assert "--loss {l1,l2} pixel loss of the image term: mean absolute (l1, default)" in texts["fit-sequence"]
+    assert "--points N points sampled on every mesh frame" in texts["fit-sequence"]
+    assert ("--deterministic bit-reproducible image term: the reverse render runs on one thread (slower)"
+            in texts["fit-sequence"])

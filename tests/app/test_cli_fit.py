@@ -9,14 +9,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, one_line_error
 from matplotlib import image as mpl_image
 
 from mi_loop import datasets, io
 from mi_loop.app.cli import main
+from mi_loop.mesh.topology import validate_mesh
 from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.subdiv.tessellation import tessellate
-from mi_loop.mesh.topology import validate_mesh
-from helpers import one_line_error
 
 MI_LOOP = Path(sys.executable).with_name("mi-loop")
 
@@ -47,7 +47,7 @@ def torus_cloud(n=2000, seed=3):
 
 def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(["fit", "--demo", "-o", str(out), "--vertices", "100", "--iterations", "60", "--quiet"])
+    code = main(["fit", "--demo", "-o", str(out), "--vertices", "100", "--iterations", "60"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     names = ["control.ply", "limit.ply", "report.json", "loss.png", "render.png"]
@@ -71,9 +71,24 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     assert metrics["mean"] < 0.01                                              # 1 % of the bbox diagonal
     assert report["template"]["genus"] == 1
     assert all(np.isfinite(v) for v in report["final_energy"].values())
+    assert report["variant"] == "llvm_ad_rgb"
+
+    # the stage line names the terms that are on; the end says whether the fit converged
+    err = captured.err
+    assert "fitting: template, limit operator, then Adam on IMLS + 3 x coverage + 0.001 x ARAP" in err
+    n = params["iterations"]
+    assert report["converged"] is (n < 60)
+    assert (f"converged after {n} iterations" if n < 60 else "stopped at the iteration cap (60)") in err
+
+    # the demo knows the clean torus: distances to it too, next to those to the noisy points
+    clean = report["metrics_clean"]
+    assert set(clean) >= keys and all(np.isfinite(clean[k]) and clean[k] >= 0 for k in keys)
+    assert clean["mean"] < metrics["mean"]               # noise and outliers are not on the clean surface
+    assert clean["n_target"] == 20000 and metrics["n_target"] == 20200
+    assert re.search(r"distance to the clean torus .*: mean \d\.\d\de-\d\d, RMS", err), err
 
     V, F = io.read_mesh(out / "control.ply")
-    V_checked, F_checked, _ = validate_mesh(V, F)                              # a valid control mesh
+    V_checked, _F_checked, _ = validate_mesh(V, F)                              # a valid control mesh
     assert len(V_checked) == len(V) == params["n_vertices"] and len(F) == params["n_faces"]
     E = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), 1), axis=0)
     assert len(V) - len(E) + len(F) == 0                                       # closed genus-1 surface
@@ -93,10 +108,11 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
 def test_console_script_reports_bad_input_without_traceback(tmp_path):
     out = tmp_path / "out"
     result = subprocess.run([str(MI_LOOP), "fit", str(tmp_path / "missing.xyz"), "-o", str(out), "--quiet"],
-                            capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+                            capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, check=False)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr and result.stderr.count("\n") == 1, result.stderr
-    assert re.match(r"mi-loop: error: load_oriented_points: '.*missing\.xyz': no such file$", result.stderr)
+    assert re.match(r"mi-loop: error: load_oriented_points\(\): expected an existing file, got '.*missing\.xyz': "
+                    r"no such file$", result.stderr)
     assert result.stdout == "" and not out.exists()
 
 
@@ -168,25 +184,26 @@ def input_and_demo(tmp_path):
 
 BAD_INPUTS = {
     "missing file": (lambda tmp_path: [str(tmp_path / "missing.xyz")],
-                     r"load_oriented_points: '.*missing\.xyz': no such file$"),
-    "empty file": (empty_file, r"load_oriented_points: '.*empty\.xyz': the file holds no points$"),
-    "NaN point": (nan_cloud, r"'.*nan\.xyz': point 7 has a non-finite coordinate \[.*nan.*\]"),
+                     r"load_oriented_points\(\): expected an existing file, got '.*missing\.xyz': no such file$"),
+    "empty file": (empty_file, r"load_oriented_points\(\): expected points in '.*empty\.xyz', got none"),
+    "NaN point": (nan_cloud, r"expected finite points in '.*nan\.xyz', got point 7 = \[.*nan.*\]"),
     "zero normal xyz": (zero_normal_xyz,
-                        r"'.*zero\.xyz': normal 11 is zero-length or non-finite \[0\.0, 0\.0, 0\.0\]"),
+                        r"non-zero normals in '.*zero\.xyz', got normal 11 = \[0\.0, 0\.0, 0\.0\]"),
     "zero normal ply": (zero_normal_ply,
-                        r"'.*zero\.ply': normal 5 is zero-length or non-finite \[0\.0, 0\.0, 0\.0\]"),
+                        r"non-zero normals in '.*zero\.ply', got normal 5 = \[0\.0, 0\.0, 0\.0\]"),
     "too few points": (few_points, r"make_template\(\): n_vertices=1000 is more than half the 30 input points"),
     "non-manifold template": (non_manifold_template,
-                              r"--template .*nonman\.obj: edge \(0, 1\) is used twice in the same direction"),
-    "missing template": (missing_template, r"read_mesh: '.*nope\.ply': no such file$"),
+                              r"fit --template '.*nonman\.obj': .*edge \(0, 1\)"),
+    "missing template": (missing_template, r"expected an existing file, got '.*nope\.ply': no such file$"),
     "template, too few points": (template_with_too_few_points,
                                  r"IMLS\(\): expected at least min_neighbors = 12 points, got 8"),
-    "--vertices 3": (vertices(3), r"fit: --vertices must be at least 4, got 3$"),
+    "--vertices 3": (vertices(3), r"fit --vertices: expected an integer >= 4, got 3$"),
     "--vertices 10**6": (vertices(10**6),
                          r"make_template\(\): n_vertices=1000000 is more than half the 2000 input points"),
-    "--h0 -1": (negative_h0, r"IMLS\(\): expected a finite h0 > 0 .*got -1\.0$"),
-    "INPUT and --demo": (input_and_demo, r"fit: give either an INPUT file or --demo$"),
-    "neither INPUT nor --demo": (lambda tmp_path: [], r"fit: give either an INPUT file or --demo$"),
+    "--h0 -1": (negative_h0, r"fit --h0: expected a finite number > 0 \(or None: automatic\), got -1\.0$"),
+    "INPUT and --demo": (input_and_demo, r"fit INPUT: expected an input file or --demo \(one of them\), got both$"),
+    "neither INPUT nor --demo": (lambda tmp_path: [],
+                                 r"fit INPUT: expected an input file or --demo \(one of them\), got neither$"),
 }
 
 
@@ -217,13 +234,13 @@ def test_fit_rejects_an_output_path_under_a_regular_file(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     line = one_line_error(capsys, ["fit", str(write_xyz(tmp_path / "ok.xyz", P, N)),
                                    "-o", str(tmp_path / "file" / "out"), "--quiet"])
-    assert re.search(r"cannot write to directory '.*file/out': Not a directory$", line), line
+    assert re.search(r"ensure_writable_dir\(\): expected a directory that files can be created in, got "
+                     r"'.*file/out': Not a directory$", line), line
     assert (tmp_path / "file").read_text() == "x"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "ok.xyz"]
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--iterations", "0"], r"argument --iterations: expected a positive integer, got 0"),
     (["--vertices", "50", "--template", "t.ply"], r"argument --template: not allowed with argument --vertices"),
     (["--samples", "grid"], r"argument --samples: invalid choice: 'grid'"),
 ])
@@ -243,6 +260,7 @@ def test_fit_usage_errors_exit_2(argv, message, tmp_path, capsys):
 
 def test_a_failing_writer_leaves_no_temporary_or_partial_file(tmp_path, capsys, monkeypatch):
     import matplotlib.image
+
     import mi_loop.app.report
 
     def full_disk(f, *args, **kwargs):
@@ -263,6 +281,7 @@ def test_a_failing_writer_leaves_no_temporary_or_partial_file(tmp_path, capsys, 
 
 def test_a_failing_writer_keeps_an_existing_outdir_as_it_was(tmp_path, capsys, monkeypatch):
     import matplotlib.image
+
     import mi_loop.app.report
 
     def full_disk(f, *args, **kwargs):
@@ -337,7 +356,8 @@ def test_compare_with_a_point_target_has_no_nps(tmp_path, capsys):
     io.write_ply(tmp_path / "control.ply", V, F)
     write_xyz(tmp_path / "points.xyz", V_lim, V_lim)                 # the limit points lie on the surface
     result = run_compare(capsys, [str(tmp_path / "control.ply"), str(tmp_path / "points.xyz")])
-    assert set(result) == {"two_sided"}
+    assert set(result) == {"fitted", "two_sided", "definitions"}
+    assert set(result["definitions"]) == {"two_sided"}
     two = result["two_sided"]
     assert two["n_target"] == len(V_lim)
     assert 0 <= two["p2s_max"] < 1e-9                                  # target points to the surface
@@ -351,10 +371,219 @@ def test_compare_rejects_bad_files(tmp_path, capsys):
     io.write_ply(tmp_path / "control.ply", *datasets.icosphere(1))
     write_xyz(tmp_path / "points.xyz", *torus_cloud(100))
     line = one_line_error(capsys, ["compare", str(tmp_path / "nope.ply"), str(tmp_path / "points.xyz")])
-    assert re.search(r"read_mesh: '.*nope\.ply': no such file$", line), line
+    assert re.search(r"read_mesh\(\): expected an existing file, got '.*nope\.ply': no such file$", line), line
     line = one_line_error(capsys, ["compare", str(tmp_path / "control.ply"), str(tmp_path / "nope.xyz")])
-    assert re.search(r"load_oriented_points: '.*nope\.xyz': no such file$", line), line
+    assert re.search(r"load_oriented_points\(\): expected an existing file, got '.*nope\.xyz': no such file$",
+                     line), line
     (tmp_path / "nonman.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 1 1 1\n"
                                          "f 1 2 3\nf 1 2 4\nf 2 1 5\n")
     line = one_line_error(capsys, ["compare", str(tmp_path / "nonman.obj"), str(tmp_path / "points.xyz")])
-    assert re.search(r"compare: .*nonman\.obj: edge \(0, 1\) is used twice", line), line
+    assert re.search(r"compare: .*nonman\.obj: .*edge \(0, 1\)", line), line
+
+
+# -- options are checked before any input is read ---------------------------------------
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--alpha", "-1"], r"fit --alpha: expected a finite number >= 0, got -1\.0$"),
+    (["--cover", "nan"], r"fit --cover: expected a finite number >= 0, got nan$"),
+    (["--iterations", "0"], r"fit --iterations: expected an integer >= 1, got 0$"),
+    (["--tolerance=-1e-3"], r"fit --tolerance: expected a finite number >= 0, got -0\.001$"),
+    (["--seed", "-1"], r"fit --seed: expected an integer >= 0, got -1$"),
+    (["--h0", "0"], r"fit --h0: expected a finite number > 0 \(or None: automatic\), got 0\.0$"),
+    (["--vertices", "2"], r"fit --vertices: expected an integer >= 4, got 2$"),
+])
+def test_a_bad_option_fails_before_the_input_is_read(argv, message, tmp_path, capsys):
+    """The input does not exist: an error about the option proves it came first."""
+    out = tmp_path / "out"
+    line = one_line_error(capsys, ["fit", str(tmp_path / "nonexistent" / "huge_scan.ply"), "-o", str(out),
+                                   *argv])
+    assert re.search(message, line), line
+    assert list(tmp_path.iterdir()) == []                          # nothing written, not even OUTDIR
+
+
+def test_the_command_line_defaults_are_the_options_defaults():
+    import dataclasses
+    import inspect
+
+    from mi_loop.app.cli import fit_options
+    from mi_loop.app.parser import build_parser
+    from mi_loop.fitting.options import FitOptions
+    from mi_loop.fitting.static import fit
+
+    assert fit_options(build_parser().parse_args(["fit", "--demo", "-o", "x"])) == FitOptions()
+    signature = inspect.signature(fit).parameters                  # fit()'s keywords read them too
+    for field in dataclasses.fields(FitOptions):
+        assert signature[field.name].default == field.default, field.name
+
+
+# -- --template: in the data's frame ---------------------------------------------------
+
+SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
+
+
+def test_a_template_in_another_frame_is_refused(tmp_path, capsys):
+    """control/bunny_4667.ply is the remeshed bunny at about 10x the range scans' size, centred elsewhere."""
+    out = tmp_path / "out"
+    template = DATA / "control" / "bunny_4667.ply"
+    line = one_line_error(capsys, ["fit", str(SCAN), "-o", str(out), "--template", str(template), "--quiet"])
+    assert line.startswith(f"mi-loop: error: fit --template '{template}': expected a control mesh in the "
+                           "data's frame (bounding-box diagonal within a factor 2 of the data's, centre within "
+                           "0.25 of its diagonal), got a template 9.")
+    assert line.endswith("scale and translate the template onto the data")
+    assert not out.exists()
+
+
+def bunny_in_the_scans_frame():
+    """control/bunny_314.ply mapped box to box onto the range scans (the same axes, another scale)."""
+    P, _, _ = io.load_oriented_points(SCAN)
+    V, F = io.read_mesh(DATA / "control" / "bunny_314.ply")
+    lo, hi = V.min(0), V.max(0)
+    return P, P.min(0) + (V - lo) / (hi - lo) * np.ptp(P, axis=0), F
+
+
+def test_template_frame_check_on_the_shared_bunnies():
+    from mi_loop.app.inputs import check_template_frame
+
+    P, V_scan, _ = bunny_in_the_scans_frame()
+    for name in ("bunny_314", "bunny_4667"):                      # none of them is in the scans' frame
+        V, _ = io.read_mesh(DATA / "control" / f"{name}.ply")
+        with pytest.raises(ValueError, match=r"got a template 9\.\d+x the data's size"):
+            check_template_frame(V, P, "t")
+    info = check_template_frame(V_scan, P, "t")                     # mapped onto the scans: accepted
+    assert info["size_ratio"] == pytest.approx(1.0) and info["centre_offset"] < 1e-12
+    shifted = V_scan + [0.3 * np.linalg.norm(np.ptp(P, axis=0)), 0, 0]   # 0.3 diagonals aside
+    with pytest.raises(ValueError, match=r"got a template 1x the data's size whose centre is 0\.3 data diagonals"):
+        check_template_frame(shifted, P, "t")
+    with pytest.raises(ValueError, match=r"got a template 2\.5x"):
+        check_template_frame(2.5 * (V_scan - P.mean(0)) + P.mean(0), P, "t")
+
+
+@pytest.mark.slow
+def test_a_template_in_the_datas_frame_fits_the_scan(tmp_path, capsys):
+    _P, V, F = bunny_in_the_scans_frame()
+    io.write_ply(tmp_path / "bunny_314_scan.ply", V, F)
+    out = tmp_path / "out"
+    code = main(["fit", str(SCAN), "-o", str(out), "--template", str(tmp_path / "bunny_314_scan.ply"),
+                 "--iterations", "40", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert report["template"]["source"] == "file" and report["template"]["size_ratio"] == pytest.approx(1.0)
+    assert report["metrics"]["mean"] < 0.01
+
+
+# -- pictures: no backend switch, every energy term visible ---------------------------
+
+
+def test_a_fit_leaves_the_callers_matplotlib_backend_alone(tmp_path, capsys, monkeypatch):
+    import matplotlib
+
+    import mi_loop.app.report
+
+    monkeypatch.setattr(mi_loop.app.report, "side_by_side", lambda *a, **k: np.zeros((8, 16, 3)))
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")                                          # a program drawing SVG with pyplot
+    try:
+        P, N = torus_cloud(2000)
+        code = main(["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(tmp_path / "out"),
+                     "--vertices", "60", "--iterations", "10", "--quiet"])
+        assert code == 0, capsys.readouterr().err
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(before)
+
+
+# -- mi-loop compare: what was measured, and what the numbers mean ---------------------
+
+
+def test_compare_output_defines_its_numbers(tmp_path, capsys):
+    V, F = datasets.icosphere(2)
+    io.write_ply(tmp_path / "a.ply", V, F)
+    io.write_ply(tmp_path / "b.ply", 1.01 * V, F)
+    result = run_compare(capsys, [str(tmp_path / "a.ply"), str(tmp_path / "b.ply")])
+    assert result["fitted"] == {"path": str(tmp_path / "a.ply"), "n_vertices": 162,
+                                "as": "control mesh (its limit surface at level 3)"}
+    definitions = result["definitions"]
+    assert set(definitions) == {"two_sided", "nps"}
+    assert {"P2S", "HD", "NAE", "units"} <= set(definitions["nps"])
+    assert "degrees" in definitions["nps"]["NAE"] and "largest extent is 2" in definitions["nps"]["units"]
+    assert "bounding-box diagonal" in definitions["two_sided"]["units"]
+    for key in result["two_sided"]:                                # every number has its definition
+        assert any(key in name.split(", ") for name in definitions["two_sided"]) or key == "diagonal"
+
+
+def test_compare_help_defines_the_metrics(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["compare", "--help"])
+    assert info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for phrase in ("P2S: point-to-surface distance", "HD: Hausdorff distance", "NAE: normal angle error in degrees",
+                   "fractions of the target's bounding-box diagonal", "--control", "--mesh"):
+        assert phrase in text, phrase
+
+
+def test_compare_measures_a_dense_mesh_as_it_is_and_says_so(tmp_path, capsys, monkeypatch):
+    from mi_loop.app import compare_job
+
+    monkeypatch.setattr(compare_job, "CONTROL_VERTEX_LIMIT", 100)   # icosphere(2): 162 vertices
+    V, F = datasets.icosphere(2)
+    io.write_ply(tmp_path / "limit.ply", V, F)
+    io.write_ply(tmp_path / "target.ply", V, F)
+    code = main(["compare", str(tmp_path / "limit.ply"), str(tmp_path / "target.ply")])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    result = json.loads(captured.out)
+    assert result["fitted"]["as"] == "plain triangle mesh"
+    assert result["two_sided"]["hausdorff"] < 1e-9                  # the same mesh: measured as it is
+    assert ("FITTED 'limit.ply' has 162 vertices (more than 100): measuring it as a plain triangle mesh; "
+            "pass --control to evaluate its limit surface") in captured.err
+    code = main(["compare", str(tmp_path / "limit.ply"), str(tmp_path / "target.ply"), "--control", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0 and captured.err == ""
+    result = json.loads(captured.out)
+    assert result["fitted"]["as"] == "control mesh (its limit surface at level 3)"
+    assert result["two_sided"]["hausdorff"] > 1e-3                  # the limit surface shrinks inside
+
+
+CUBE_OBJ = ("v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n"
+            "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n")   # six outward quads
+
+
+def test_a_quad_template_is_split_with_a_warning_and_recorded(tmp_path, capsys):
+    P, N = torus_cloud(3000)
+    (tmp_path / "cube.obj").write_text(CUBE_OBJ)
+    out = tmp_path / "out"
+    code = main(["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(out), "--template",
+                 str(tmp_path / "cube.obj"), "--iterations", "5", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert captured.err.splitlines() == [
+        (f"mi-loop: warning: fit --template '{tmp_path / 'cube.obj'}': 6 faces with more than three corners "
+         "were split into triangles (12 triangles); the Loop surface of the triangulated mesh is fitted")]
+    template = json.loads((out / "report.json").read_text())["template"]
+    assert template["split_polygons"] == 6 and template["n_faces"] == 12 and template["source"] == "file"
+
+
+def test_a_diverging_fit_is_one_line(tmp_path, capsys, monkeypatch):
+    import mitsuba as mi
+
+    from mi_loop.energies.imls import IMLS
+
+    energy = IMLS.energy
+    monkeypatch.setattr(IMLS, "energy", lambda self, Q, reduce="sum": energy(self, Q, reduce) + mi.Float(float("nan")))
+    P, N = torus_cloud(2000)
+    out = tmp_path / "out"
+    line = one_line_error(capsys, ["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(out),
+                                   "--vertices", "60", "--iterations", "10", "--quiet"])
+    assert line.startswith("mi-loop: error: fit(): the optimisation diverged (non-finite energy)")
+    assert not out.exists()
+
+
+def test_the_stage_line_names_the_terms_that_are_on():
+    from mi_loop.app.fit_job import _stage_line
+    from mi_loop.fitting.options import FitOptions
+
+    head = "fitting: template, limit operator, then Adam on "
+    assert _stage_line(FitOptions()) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
+    assert _stage_line(FitOptions(cover=0.0)) == head + "IMLS + 0.001 x ARAP"
+    assert _stage_line(FitOptions(alpha=0.0, cover=1.5)) == head + "IMLS + 1.5 x coverage"

@@ -232,7 +232,7 @@ def test_fit_rejects_a_zero_length_normal(cloud):
 
 
 def test_fit_rejects_an_invalid_samples_mode(cloud):
-    with pytest.raises(ValueError, match=r"fit\(\): samples must be one of .*got 'faces'"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected samples to be one of .*got 'faces'"):
         fit(*cloud, template=small_template(), samples="faces")
 
 
@@ -240,11 +240,13 @@ def test_fit_rejects_a_non_manifold_template(cloud):
     # two tetrahedra sharing only vertex 0: a bow-tie vertex
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]], float)
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3], [0, 5, 4], [0, 4, 6], [0, 6, 5], [4, 5, 6]])
-    with pytest.raises(ValueError, match=r"fit\(\): vertex 0 is non-manifold \(its faces form 2 separate fans\)"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(the faces around each vertex form one fan\), got non-manifold "
+                                         r"vertex 0, whose faces form 2 separate fans"):
         fit(*cloud, template=(V, F))
     # a third face on edge (0, 1) of a tetrahedron
     F = np.vstack([F[:4], [[0, 1, 4]]])
-    with pytest.raises(ValueError, match=r"fit\(\): edge \(0, 1\) is used twice in the same direction"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(at most two faces per edge\), got non-manifold edge \(0, 1\) "
+                                         r"shared by 3 faces \(0, 1, 4\)"):
         fit(*cloud, template=(V[:5], F))
 
 
@@ -252,20 +254,20 @@ def test_fit_rejects_degenerate_templates(cloud):
     V, F = datasets.icosphere(1)
     F_rep = F.copy()
     F_rep[3] = [F[3, 0], F[3, 0], F[3, 1]]
-    with pytest.raises(ValueError, match=re.escape(f"fit(): face 3 = {F_rep[3].tolist()} is degenerate")):
+    with pytest.raises(ValueError, match=re.escape(f"fit(): expected faces with three distinct vertices, got face 3 = {F_rep[3].tolist()} (degenerate)")):
         fit(*cloud, template=(V, F_rep))
     V_flat = V.copy()
     V_flat[F[0, 2]] = (V[F[0, 0]] + V[F[0, 1]]) / 2             # face 0 collapses onto its edge
-    with pytest.raises(ValueError, match=re.escape(f"ARAP: face 0 = {F[0].tolist()} has zero area")):
+    with pytest.raises(ValueError, match=re.escape(f"ARAP(): expected rest faces of non-zero area (cotangent weights), got face 0 = {F[0].tolist()} of zero area")):
         fit(*cloud, template=(V_flat, F))
     V_nan = V.copy()
     V_nan[7, 2] = np.nan
-    with pytest.raises(ValueError, match=r"fit\(\): vertex 7 has a non-finite coordinate"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected finite vertex coordinates, got vertex 7 = \[.*nan\]"):
         fit(*cloud, template=(V_nan, F))
 
 
 def test_fit_rejects_fewer_than_four_template_vertices(cloud):
-    with pytest.raises(ValueError, match=r"make_template\(\): n_vertices must be an integer >= 4, got 3"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected n_vertices to be an integer >= 4, got 3"):
         fit(*cloud, n_vertices=3)
 
 
@@ -282,18 +284,18 @@ def test_fit_rejects_too_few_points_for_the_distance_term(cloud):
 
 
 def test_fit_rejects_a_non_positive_h0(cloud):
-    with pytest.raises(ValueError, match=r"IMLS\(\): expected a finite h0 > 0 .* got -0.5"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected h0 to be a finite number > 0 .*, got -0.5"):
         fit(*cloud, template=small_template(), h0=-0.5)
 
 
 @pytest.mark.parametrize("cover", [-1.0, float("inf")])
 def test_fit_rejects_a_bad_cover_weight(cloud, cover):
-    with pytest.raises(ValueError, match=rf"fit\(\): cover must be a finite number >= 0, got {cover}"):
+    with pytest.raises(ValueError, match=rf"fit\(\): expected cover to be a finite number >= 0, got {cover}"):
         fit(*cloud, template=small_template(), cover=cover, max_iterations=5)
 
 
 def test_fit_rejects_a_nan_alpha(cloud):
-    with pytest.raises(ValueError, match=r"fit\(\): alpha must be a finite number >= 0, got nan"):
+    with pytest.raises(ValueError, match=r"fit\(\): expected alpha to be a finite number >= 0, got nan"):
         fit(*cloud, template=small_template(), alpha=float("nan"), max_iterations=5)
 
 

@@ -7,30 +7,30 @@ minute on two busy CPU cores.
 from __future__ import annotations
 
 import csv
+import re
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
+from helpers import one_line_error
 
 import mi_loop.fitting.sequence
 import mi_loop.io.files
 import mi_loop.render.multiview
 from mi_loop import datasets, io
-from mi_loop.energies.arap import ARAP
-from mi_loop.app.cli import main
-from mi_loop.fitting.static import sample_parameters
-from mi_loop.mesh.geometry import mean_edge_length
-from mi_loop.energies.imls import IMLS
-from mi_loop.subdiv.limit import limit_matrix
-from mi_loop.mesh.sampling import sample_surface
 from mi_loop.ad.operator import LimitOperator
-from mi_loop.render.scene import _direction
+from mi_loop.app.cli import main
+from mi_loop.energies.arap import ARAP
+from mi_loop.energies.imls import IMLS
 from mi_loop.fitting.sequence import SequenceOptions, fit_frame
-from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.fitting.static import sample_parameters
+from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
+from mi_loop.mesh.sampling import sample_surface
 from mi_loop.render.multiview import Renderer, rig_views
+from mi_loop.render.scene import _direction
+from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.subdiv.tessellation import tessellate
-from helpers import one_line_error
 
 BOX = (np.full(3, -0.6), np.full(3, 0.6))   # fixed camera box of the renderer tests
 
@@ -85,7 +85,7 @@ def test_image_gradient_matches_central_differences(mode):
     Carlo estimate with other samples than the primal renders, and the
     differences of a fixed-seed L1 loss carry pixel-quantisation noise.
     """
-    V, F, renderer, targets = renderer_and_targets(mode)
+    V, _F, renderer, targets = renderer_and_targets(mode)
     views, seed, h = [0, 1, 2], 5, 0.02
     g = sum(image_gradient(renderer, V, [k], targets, seed) for k in views) / len(views)
 
@@ -101,7 +101,7 @@ def test_image_gradient_matches_central_differences(mode):
 
 def test_multi_view_loss_gradient_is_the_mean_of_the_per_view_gradients():
     """loss(x, [0, 1]) = (loss(x, [0]) + loss(x, [1])) / 2 (same seeds), so the gradients must be too."""
-    V, F, renderer, targets = renderer_and_targets("silhouette", spp=8, views=2)
+    V, _F, renderer, targets = renderer_and_targets("silhouette", spp=8, views=2)
     g0, g1 = (image_gradient(renderer, V, [k], targets, 5) for k in (0, 1))
     both = renderer.loss(flat(V), [0, 1], targets, seed=5)
     single = [renderer.loss(flat(V), [k], targets, seed=5) for k in (0, 1)]
@@ -328,26 +328,27 @@ def interrupt_at_frame(monkeypatch, frame):
 
 def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_run, tmp_path,
                                                             monkeypatch, capsys):
-    """IMLS + ARAP only: the resumed run must reproduce the uninterrupted one. Not bit for
-    bit: the reverse passes sum in parallel (two threads, float32), so repeated runs differ by
-    a few float32 ulps (measured 2.5e-8 at coordinates ~1), and frame 2 starts from
-    control/0001.ply (world coordinates mapped back to the unit box, cast to float32).
-    Tolerance 1e-6 of the sequence's extent (~2.2), 40x the measured difference."""
+    """IMLS + ARAP only: the resumed run reproduces the uninterrupted one bit for bit. Frame 2
+    starts from state/0001.npz (the exact float64 control points in the unit box), with the
+    normalisation, step size and options of sequence.json; the fitting loops are deterministic."""
     out = tmp_path / "out"
     interrupt_at_frame(monkeypatch, 2)
     assert main(argv(inputs, out, "--no-image")) == 130
     assert capsys.readouterr().err.splitlines()[-1] == "mi-loop: error: interrupted"
     assert len(read_rows(out)) == 2 and not (out / "control" / "0002.ply").exists()
     monkeypatch.undo()
-    run_ok(argv(inputs, out, "--no-image", "--resume"))
-    assert "resuming after frame 1 (2 frames done)" in capsys.readouterr().err
+    run_ok(argv(inputs, out, "--no-image", "--resume", "--alpha", "0.02"))   # kept from sequence.json
+    err = capsys.readouterr().err
+    assert "resuming after frame 1 (2 frames done)" in err
+    assert "mi-loop: warning: --resume keeps the options of sequence.json: alpha 0.01 (this command line: 0.02)" in err
     assert [int(r["frame"]) for r in read_rows(out)] == [0, 1, 2]
-    extent = np.ptp(np.load(inputs[0])["vertices"].reshape(-1, 3), axis=0).max()
     for t in range(3):
         V, F = io.read_mesh(out / "control" / f"{t:04d}.ply")
         V_ref, F_ref = io.read_mesh(geometric_run / "control" / f"{t:04d}.ply")
         np.testing.assert_array_equal(F, F_ref)
-        np.testing.assert_allclose(V, V_ref, rtol=0, atol=1e-6 * extent)
+        np.testing.assert_array_equal(V, V_ref)
+        with np.load(out / "state" / f"{t:04d}.npz") as a, np.load(geometric_run / "state" / f"{t:04d}.npz") as b:
+            np.testing.assert_array_equal(a["x"], b["x"])
 
 
 def spy_on_camera_boxes(monkeypatch, boxes):
@@ -359,25 +360,24 @@ def spy_on_camera_boxes(monkeypatch, boxes):
     monkeypatch.setattr(mi_loop.render.multiview, "Renderer", Spy)
 
 
-def test_resume_with_images_matches_the_uninterrupted_run(inputs, image_run, tmp_path, monkeypatch):
-    """The cameras are fixed for the whole sequence, so a resumed run must use the same ones,
-    and frame 2 must match the uninterrupted run's. Renders accumulate with float32 atomics,
-    so runs are not bit-identical: repeated uninterrupted runs differ by ~1e-7 at frame 2;
-    tolerance 1e-4 of the sequence's extent (~2.2), far above that and far below what a
-    change of cameras does (measured 5e-3)."""
-    out, boxes = tmp_path / "out", []
+def test_resume_with_images_matches_the_uninterrupted_run(inputs, tmp_path, monkeypatch):
+    """The cameras are fixed for the whole sequence, so a resumed run must use the same ones, and
+    with --deterministic (the reverse render on one thread) the resumed frames equal the
+    uninterrupted run's bit for bit."""
+    reference, out, boxes = tmp_path / "reference", tmp_path / "out", []
+    run_ok(argv(inputs, reference, "--deterministic"))
     interrupt_at_frame(monkeypatch, 2)
     spy_on_camera_boxes(monkeypatch, boxes)
-    assert main(argv(inputs, out)) == 130
+    assert main(argv(inputs, out, "--deterministic")) == 130
     monkeypatch.undo()
     spy_on_camera_boxes(monkeypatch, boxes)
-    run_ok(argv(inputs, out, "--resume"))
+    run_ok(argv(inputs, out, "--resume"))                 # --deterministic comes from sequence.json
     assert len(boxes) == 2
-    np.testing.assert_allclose(boxes[1], boxes[0], rtol=0, atol=1e-12)   # same cameras
-    V, _ = io.read_mesh(out / "control" / "0002.ply")
-    V_ref, _ = io.read_mesh(image_run / "control" / "0002.ply")
-    extent = np.ptp(np.load(inputs[0])["vertices"].reshape(-1, 3), axis=0).max()
-    np.testing.assert_allclose(V, V_ref, rtol=0, atol=1e-4 * extent)
+    np.testing.assert_array_equal(boxes[1], boxes[0])     # same cameras
+    for t in range(3):
+        V, _ = io.read_mesh(out / "control" / f"{t:04d}.ply")
+        V_ref, _ = io.read_mesh(reference / "control" / f"{t:04d}.ply")
+        np.testing.assert_array_equal(V, V_ref, err_msg=f"frame {t}")
 
 
 def test_ctrl_c_while_writing_a_frame_leaves_only_complete_files(inputs, geometric_run, tmp_path,
@@ -423,7 +423,8 @@ def test_ctrl_c_while_writing_a_frame_leaves_only_complete_files(inputs, geometr
     assert any("control" in p and "0001.ply" in p for p in paths.values())   # it was interrupted there
     assert no_temporary_files(out)
     assert sorted(p.name for p in (out / "control").iterdir()) == ["0000.ply"]
-    V, F = io.read_mesh(out / "control" / "0000.ply")
+    assert sorted(p.name for p in (out / "state").iterdir()) == ["0000.npz"]
+    V, _F = io.read_mesh(out / "control" / "0000.ply")
     assert V.shape == (42, 3)
     assert [int(r["frame"]) for r in read_rows(out)] == [0]
     for p in (out / "limit").iterdir():                  # whatever is there is complete
@@ -431,8 +432,7 @@ def test_ctrl_c_while_writing_a_frame_leaves_only_complete_files(inputs, geometr
     run_ok(argv(inputs, out, "--no-image", "--resume"))
     V, _ = io.read_mesh(out / "control" / "0002.ply")
     V_ref, _ = io.read_mesh(geometric_run / "control" / "0002.ply")
-    extent = np.ptp(np.load(inputs[0])["vertices"].reshape(-1, 3), axis=0).max()
-    np.testing.assert_allclose(V, V_ref, rtol=0, atol=1e-6 * extent)   # as in the resume test
+    np.testing.assert_array_equal(V, V_ref)                             # as in the resume test
 
 
 # -- bad input ---------------------------------------------------------------------
@@ -452,7 +452,7 @@ def test_an_unreadable_frame_stops_the_run_and_keeps_the_finished_frames(inputs,
     assert "0002.ply" in line
     assert [int(r["frame"]) for r in read_rows(out)] == [0, 1]
     for t in range(2):
-        V, F = io.read_mesh(out / "control" / f"{t:04d}.ply")
+        V, _F = io.read_mesh(out / "control" / f"{t:04d}.ply")
         assert V.shape == (42, 3)
     assert no_temporary_files(out)
 
@@ -464,20 +464,23 @@ def test_a_frame_with_nan_coordinates_is_rejected(tmp_path, capsys):
     np.savez(tmp_path / "seq.npz", vertices=frames, faces=F)
     line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "seq.npz"), "-o",
                                    str(tmp_path / "out"), "--vertices", "42"])
-    assert line == "mi-loop: error: frame seq[0]: vertex 7 has a non-finite coordinate"
+    assert re.fullmatch(r"mi-loop: error: fit-sequence FRAMES: expected finite coordinates in frame seq\[0\], got "
+                        r"vertex 7 = \[.*, nan, .*\]", line), line
     assert not (tmp_path / "out").exists()
 
 
 def test_an_empty_directory_is_an_empty_sequence(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "empty"), "-o", str(tmp_path / "out")])
-    assert line == "mi-loop: error: read_frames: the sequence is empty (no frame files found)"
+    assert line == ("mi-loop: error: read_frames(): expected at least one frame file, got none in "
+                    f"['{tmp_path / 'empty'}']")
 
 
 def test_a_missing_frame_path_is_named(tmp_path, capsys):
     missing = tmp_path / "nope.npz"
     line = one_line_error(capsys, ["fit-sequence", str(missing), "-o", str(tmp_path / "out")])
-    assert line == f"mi-loop: error: read_frames: no such file or directory: '{missing}'"
+    assert line == ("mi-loop: error: read_frames(): expected an existing file, directory or glob pattern, "
+                    f"got '{missing}': no such file or directory")
 
 
 def test_a_non_manifold_template_is_rejected(inputs, tmp_path, capsys):
@@ -486,20 +489,21 @@ def test_a_non_manifold_template_is_rejected(inputs, tmp_path, capsys):
     io.write_ply(tmp_path / "bad.ply", V, F)
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
                                    "--template", str(tmp_path / "bad.ply"), *FAST])
-    assert f"--template {tmp_path / 'bad.ply'}" in line
+    assert line.startswith(f"mi-loop: error: fit-sequence --template '{tmp_path / 'bad.ply'}': ")
     assert "edge" in line and "0" in line and "1" in line
 
 
 def test_an_output_directory_under_a_regular_file_is_rejected(inputs, tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "file" / "out")])
-    assert line.startswith(f"mi-loop: error: cannot write to directory '{tmp_path / 'file' / 'out'}'")
+    assert line == ("mi-loop: error: ensure_writable_dir(): expected a directory that files can be created in, "
+                    f"got '{tmp_path / 'file' / 'out'}': Not a directory")
 
 
 def test_fewer_than_four_template_vertices_are_rejected(inputs, tmp_path, capsys):
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
                                    "--vertices", "3"])
-    assert line == "mi-loop: error: fit-sequence: --vertices must be at least 4, got 3"
+    assert line == "mi-loop: error: fit-sequence --vertices: expected an integer >= 4, got 3"
     assert not (tmp_path / "out").exists()
 
 
@@ -510,7 +514,8 @@ def test_a_quoted_glob_selects_frames_in_name_order(tmp_path, capsys):
     frames = io.read_frames([str(tmp_path / "f_0[0-2].ply")])
     assert [frame()[0] for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.ply"]
     line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "g_*.ply"), "-o", str(tmp_path / "out")])
-    assert line == f"mi-loop: error: read_frames: no frame file matches '{tmp_path / 'g_*.ply'}'"
+    assert line == ("mi-loop: error: read_frames(): expected frame files matching the pattern, got none for "
+                    f"'{tmp_path / 'g_*.ply'}'")
 
 
 def test_the_automatic_template_of_mesh_frames_comes_from_the_first_mesh(tmp_path, capsys):
@@ -520,7 +525,7 @@ def test_the_automatic_template_of_mesh_frames_comes_from_the_first_mesh(tmp_pat
     run_ok(["fit-sequence", str(tmp_path / "seq.npz"), "-o", str(out), "--vertices", "120",
             "--no-image", "--iterations", "30", "--points", "3000"])
     assert "template: first frame's mesh decimated to" in capsys.readouterr().err
-    Vc, Fc = io.read_mesh(out / "control" / "0000.ply")
+    Vc, _Fc = io.read_mesh(out / "control" / "0000.ply")
     assert abs(len(Vc) - 120) <= 6
     rows = read_rows(out)
     assert max(float(r["mean"]) for r in rows) < 2e-3
@@ -533,38 +538,74 @@ def test_a_non_manifold_first_frame_falls_back_to_poisson(tmp_path, capsys):
     run_ok(["fit-sequence", str(tmp_path / "seq.npz"), "-o", str(tmp_path / "out"), "--vertices", "120",
             "--no-image", "--iterations", "5", "--points", "3000"])
     err = capsys.readouterr().err
-    assert "template: first frame's mesh cannot be used (mesh_template(): edge (0, 166) is used twice" in err
+    assert "template: first frame's mesh cannot be used (mesh_template(): expected a manifold mesh" in err
     assert "template: screened Poisson + decimation to 120 vertices" in err
 
 
 def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, capsys):
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
                                    "--template", str(inputs[1]), "--poisson-template"])
-    assert line == ("mi-loop: error: fit-sequence: --poisson-template builds a template, "
-                    "so it cannot go with --template")
+    assert line == ("mi-loop: error: fit-sequence --poisson-template: expected no --template (it builds the "
+                    f"template), got --template '{inputs[1]}'")
 
 
 @pytest.mark.parametrize("flag, value, message", [
-    ("--alpha", "-1", "alpha must be a finite number >= 0, got -1.0"),
-    ("--beta", "nan", "beta must be a finite number >= 0, got nan"),
-    ("--cover", "-0.5", "cover must be a finite number >= 0, got -0.5"),
+    ("--alpha", "-1", "expected a finite number >= 0, got -1.0"),
+    ("--beta", "nan", "expected a finite number >= 0, got nan"),
+    ("--cover", "-0.5", "expected a finite number >= 0, got -0.5"),
+    ("--views", "0", "expected an integer >= 1, got 0"),
+    ("--res", "0", "expected an integer >= 1, got 0"),
+    ("--spp", "-2", "expected an integer >= 1, got -2"),
+    ("--iterations", "0", "expected an integer >= 1, got 0"),
+    ("--image-iterations", "0", "expected an integer >= 1, got 0"),
+    ("--points", "0", "expected an integer >= 1, got 0"),
+    ("--seed", "-3", "expected an integer >= 0, got -3"),
+    ("--views-per-iteration", "5", "expected an integer in [1, views=4], got 5"),    # FAST has --views 4
 ])
-def test_negative_or_nan_weights_are_rejected(inputs, tmp_path, capsys, flag, value, message):
-    line = one_line_error(capsys, argv(inputs, tmp_path / "out", flag, value))
-    assert line == f"mi-loop: error: SequenceOptions: {message}"
+def test_bad_options_are_rejected_before_the_frames_are_read(tmp_path, capsys, flag, value, message):
+    """The frames do not exist: an error about the option proves it came first; nothing is written."""
+    out = tmp_path / "out"
+    line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "nonexistent.npz"), "-o", str(out),
+                                   *FAST, flag, value])
+    assert line == f"mi-loop: error: fit-sequence {flag}: {message}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_fewer_views_than_the_default_views_per_iteration_render_them_all(inputs, tmp_path):
+    from mi_loop.app.cli import sequence_options
+    from mi_loop.app.parser import build_parser
+
+    options = sequence_options(build_parser().parse_args(["fit-sequence", "f.npz", "-o", "x", "--views", "1"]))
+    assert options.views == options.views_per_iteration == 1
+    defaults = sequence_options(build_parser().parse_args(["fit-sequence", "f.npz", "-o", "x"]))
+    assert defaults == SequenceOptions()                            # the command line's defaults are the options'
 
 
 def test_sequence_options_reject_nonsense():
-    with pytest.raises(ValueError, match=r"SequenceOptions: views_per_iteration must be in \[1, views=4\], got 5"):
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected views_per_iteration to be an integer "
+                                         r"in \[1, views=4\], got 5$"):
         SequenceOptions(views=4, views_per_iteration=5)
-    with pytest.raises(ValueError, match=r"SequenceOptions: loss must be one of \('l1', 'l2'\), got 'l3'"):
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected loss to be one of \('l1', 'l2'\), "
+                                         r"got 'l3'$"):
         SequenceOptions(loss="l3")
-    with pytest.raises(ValueError, match=r"SequenceOptions: mode must be one of"):
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected mode to be one of"):
         SequenceOptions(mode="depth")
-    with pytest.raises(ValueError, match=r"SequenceOptions: joint_lr_scale must be a finite number > 0, got 0"):
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected joint_lr_scale to be a finite number "
+                                         r"> 0, got 0$"):
         SequenceOptions(joint_lr_scale=0)
-    with pytest.raises(ValueError, match=r"SequenceOptions: geometric and image terms are both off"):
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected geometric or image to be True "
+                                         r"\(both terms are off: nothing to fit\), got False$"):
         SequenceOptions(geometric=False, image=False)
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected deterministic to be True or False, "
+                                         r"got 'yes'$"):
+        SequenceOptions(deterministic="yes")
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected level to be an integer in 0\.\.6, "
+                                         r"got 7$"):
+        SequenceOptions(level=7)
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected every key to be one of the fields "
+                                         r"\[.*\], got \['colour'\]$"):
+        SequenceOptions.from_dict({"colour": "red"})
+    assert SequenceOptions.from_dict({"alpha": 0.5}) == SequenceOptions(alpha=0.5)   # older files: defaults
 
 
 def point_frames(tmp_path, n=2):
@@ -597,8 +638,8 @@ def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, 
 def test_image_only_needs_mesh_frames(inputs, tmp_path, capsys):
     line = one_line_error(capsys, ["fit-sequence", str(point_frames(tmp_path, 1)), "-o", str(tmp_path / "out"),
                                    "--template", str(inputs[1]), "--image-only"])
-    assert line == ("mi-loop: error: fit-sequence: --image-only needs mesh frames; point-cloud frames "
-                    "have no surface to render")
+    assert line == ("mi-loop: error: fit-sequence --image-only: expected mesh frames (a surface to render), "
+                    "got point-cloud frames")
     assert not (tmp_path / "out").exists()                       # nothing left behind
 
 
@@ -611,3 +652,173 @@ def test_a_run_stopped_before_its_first_frame_leaves_an_existing_directory_as_it
     assert main(argv(inputs, out, "--no-image")) == 130
     assert capsys.readouterr().err.splitlines()[-1] == "mi-loop: error: interrupted"
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+# -- what fit-sequence prints and records ----------------------------------------------
+
+
+def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, tmp_path, capsys):
+    import json
+    from dataclasses import asdict
+
+    from helpers import REPO
+
+    import mi_loop.app.sequence_job
+
+    out = tmp_path / "out"
+    run_ok(argv(inputs, out, "--no-image", "--deterministic", "--quiet"))
+    captured = capsys.readouterr()
+    assert captured.err == ""                                          # --quiet: no progress at all
+    expected = []
+    for t in range(3):
+        expected += [out / "control" / f"{t:04d}.ply", out / "limit" / f"{t:04d}.ply", out / "state" / f"{t:04d}.npz"]
+        if t == 0:
+            expected += [out / "sequence.json", out / "metrics.csv"]
+    expected += [out / "drift.png", out / "strip.png"]
+    assert captured.out.splitlines() == [str(p) for p in expected]
+    written = sorted(p for p in out.rglob("*") if p.is_file())
+    assert written == sorted(expected)                                 # and nothing else was written
+
+    state = json.loads((out / "sequence.json").read_text())
+    assert state["options"] == asdict(SequenceOptions(views=4, resolution=24, spp=2, geo_iterations=20,
+                                                      joint_iterations=2, n_points=2000, views_per_iteration=2,
+                                                      image=False, deterministic=True))
+    assert state["template"]["source"] == "file" and state["template"]["n_vertices"] == 42
+    assert state["normals_estimated"] is False and state["variant"] == "llvm_ad_rgb" and state["n_frames"] == 3
+    readme = (REPO / "README.md").read_text()
+    for key in state:                                                  # every key is documented
+        assert f"``{key}``" in mi_loop.app.sequence_job.__doc__, key
+        assert f"`{key}`" in readme, key
+
+
+def test_fit_sequence_draws_a_progress_bar_on_a_terminal(inputs, tmp_path, monkeypatch):
+    import io as stdio
+    import sys
+
+    class Terminal(stdio.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    run_ok(argv(inputs, tmp_path / "out", "--no-image"))
+    text = terminal.getvalue()
+    assert "fit-sequence:" in text and "frame 3/3" in text and "/60 [" in text   # 3 frames x 20 iterations
+    assert "[mi-loop" in text
+
+
+def test_a_diverging_frame_is_a_fit_error_naming_frame_and_iteration(inputs, tmp_path, capsys, monkeypatch):
+    """A NaN in frame 1's energy: one line naming the frame and iteration; frame 0 stays written."""
+    from mi_loop.energies.imls import IMLS
+    from mi_loop.errors import FitError
+
+    real_fit, real_energy = mi_loop.fitting.sequence.fit_frame, IMLS.energy
+    frame = []
+
+    def fit_frame(*args, **kwargs):
+        frame.append(args[8])
+        return real_fit(*args, **kwargs)
+
+    def energy(self, Q, reduce="sum"):
+        E = real_energy(self, Q, reduce)
+        return E + mi.Float(float("nan")) if frame[-1] == 1 else E
+
+    monkeypatch.setattr(mi_loop.fitting.sequence, "fit_frame", fit_frame)
+    monkeypatch.setattr(IMLS, "energy", energy)
+    out = tmp_path / "out"
+    line = one_line_error(capsys, argv(inputs, out, "--no-image"))
+    assert re.fullmatch(r"mi-loop: error: fit_frame\(\): expected a finite energy, got geometric nan, image nan "
+                        r"at frame 1, iteration \d+ \(the optimisation diverged\)", line), line
+    assert [int(r["frame"]) for r in read_rows(out)] == [0]
+    frame.clear()
+    assert main(argv(inputs, tmp_path / "again", "--no-image", "--debug")) == 1
+    err = capsys.readouterr().err                                      # the one exception type of a failed fit
+    assert f"{FitError.__module__}.FitError: fit_frame(): expected a finite energy" in err
+
+
+def write_point_frames(root, n=3, points=3000):
+    """``n`` PLY frames of points only (no normals, no faces) on a growing unit sphere."""
+    frames = root / "bare"
+    frames.mkdir()
+    rng = np.random.default_rng(1)
+    for t in range(n):
+        D = rng.normal(size=(points, 3))
+        D /= np.linalg.norm(D, axis=1, keepdims=True)
+        io.write_ply(frames / f"{t:04d}.ply", (1.0 + 0.05 * t) * D, np.zeros((0, 3), dtype=np.int64))
+    return frames
+
+
+def test_point_frames_without_normals_get_estimated_normals(inputs, tmp_path, capsys):
+    import json
+
+    out = tmp_path / "out"
+    run_ok(["fit-sequence", str(write_point_frames(tmp_path)), "-o", str(out), "--template", str(inputs[1]),
+            "--iterations", "60"])
+    err = capsys.readouterr().err
+    assert err.count("point-cloud frames without normals: estimating and orienting normals in every frame") == 1
+    rows = read_rows(out)
+    assert [int(r["frame"]) for r in rows] == [0, 1, 2]
+    for t, r in enumerate(rows):                  # outward normals: the surface grows with the sphere
+        V_lim, _ = io.read_mesh(out / "limit" / f"{t:04d}.ply")
+        np.testing.assert_allclose(np.linalg.norm(V_lim, axis=1).mean(), 1.0 + 0.05 * t, rtol=0.02)
+        assert float(r["mean"]) < 0.01
+    assert json.loads((out / "sequence.json").read_text())["normals_estimated"] is True
+
+
+def test_a_template_in_another_frame_is_refused(inputs, tmp_path, capsys):
+    V, F = datasets.icosphere(1)
+    io.write_ply(tmp_path / "big.ply", 10.0 * V + 30.0, F)
+    out = tmp_path / "out"
+    line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(out), "--template",
+                                   str(tmp_path / "big.ply"), *FAST])
+    assert line.startswith(f"mi-loop: error: fit-sequence --template '{tmp_path / 'big.ply'}': expected a control "
+                           "mesh in the data's frame")
+    assert line.endswith("scale and translate the template onto the data")
+    assert not out.exists()
+
+
+def test_resume_without_the_exact_state_falls_back_to_the_control_mesh(inputs, geometric_run, tmp_path,
+                                                                       monkeypatch, capsys):
+    """A run written before state/ existed: resumed from control/NNNN.ply, with a warning, nearly equal."""
+    out = tmp_path / "out"
+    interrupt_at_frame(monkeypatch, 2)
+    assert main(argv(inputs, out, "--no-image")) == 130
+    monkeypatch.undo()
+    (out / "state" / "0001.npz").unlink()
+    capsys.readouterr()
+    run_ok(argv(inputs, out, "--no-image", "--resume"))
+    assert (f"mi-loop: warning: {out / 'state' / '0001.npz'} is missing (an older run?): resuming from "
+            "control/0001.ply, which is not bit-exact") in capsys.readouterr().err
+    V, _ = io.read_mesh(out / "control" / "0002.ply")
+    V_ref, _ = io.read_mesh(geometric_run / "control" / "0002.ply")
+    extent = np.ptp(np.load(inputs[0])["vertices"].reshape(-1, 3), axis=0).max()
+    np.testing.assert_allclose(V, V_ref, rtol=0, atol=1e-6 * extent)
+
+
+def test_a_quad_template_is_split_with_a_warning_and_recorded(inputs, tmp_path, capsys):
+    import json
+
+    (tmp_path / "cube.obj").write_text("v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\n"
+                                       "v 1 1 1\nv -1 1 1\nf 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\n"
+                                       "f 3 4 8 7\nf 4 1 5 8\n")          # a cube of six quads
+    out = tmp_path / "out"
+    run_ok(["fit-sequence", str(inputs[0]), "-o", str(out), "--template", str(tmp_path / "cube.obj"), *FAST,
+            "--no-image", "--quiet"])
+    assert capsys.readouterr().err.splitlines() == [
+        (f"mi-loop: warning: fit-sequence --template '{tmp_path / 'cube.obj'}': 6 faces with more than three "
+         "corners were split into triangles (12 triangles); the Loop surface of the triangulated mesh is fitted")]
+    template = json.loads((out / "sequence.json").read_text())["template"]
+    assert template["split_polygons"] == 6 and template["n_faces"] == 12
+
+
+def test_resume_without_sequence_json_is_refused(inputs, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    interrupt_at_frame(monkeypatch, 1)
+    assert main(argv(inputs, out, "--no-image")) == 130
+    monkeypatch.undo()
+    (out / "sequence.json").unlink()
+    capsys.readouterr()
+    line = one_line_error(capsys, argv(inputs, out, "--no-image", "--resume"))
+    assert line == ("mi-loop: error: fit-sequence --resume: expected the run's sequence.json next to its "
+                    f"metrics.csv, got no '{out / 'sequence.json'}'")
+    assert [int(r["frame"]) for r in read_rows(out)] == [0]              # the finished frame is kept

@@ -212,5 +212,6 @@ def test_mesh_template_errors():
     with pytest.raises(ValueError, match="mesh_template\\(\\): min_angle must be in \\[0, 20\\] degrees, got 25"):
         mesh_template(V, F, 100, min_angle=25)
     bad = np.vstack([F, [[0, 1, 2]]])                   # one face twice: not a manifold
-    with pytest.raises(ValueError, match="^mesh_template\\(\\): vertex 0 is non-manifold"):
+    with pytest.raises(ValueError, match=r"^mesh_template\(\): expected a manifold mesh \(the faces around each vertex form one fan\), "
+                                         r"got non-manifold vertex 0, whose faces form 2 separate fans"):
         mesh_template(V, bad, 100)

@@ -1,0 +1,234 @@
+"""The ``mi-loop`` argument parser: subcommands, flags, help; defaults read from the option classes.
+
+The fitting defaults live in :mod:`mi_loop.fitting.options` only; the flags
+below store into destinations named like the fields (``--vertices`` into
+``n_vertices``), and :data:`FLAGS` maps a field back to its flag for error
+messages. ``--quiet`` and ``--debug`` are accepted before or after the subcommand.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mi_loop import datasets
+from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
+from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, SequenceOptions
+from mi_loop.render.variant import DEFAULT_VARIANT
+
+__all__ = ["FLAGS", "build_parser", "flag"]
+
+#: Option field -> its flag, where the two names differ.
+FLAGS = {"n_vertices": "--vertices", "max_iterations": "--iterations", "geo_iterations": "--iterations",
+         "joint_iterations": "--image-iterations", "resolution": "--res", "n_points": "--points",
+         "geometric": "--image-only", "image": "--no-image"}
+
+SAMPLES_HELP = ("limit samples of the distance terms: 'level1' (default) the points of a level-1 "
+                "tessellation, about 4 per control vertex (closer fits); 'vertices' one per control vertex "
+                "(its limit point: faster, the thesis's choice); 'random' four uniformly random points per "
+                "control face, drawn once from --seed")
+SEED_HELP = ("random seed: of the automatic template's sampling and of --samples random{} (default 0); "
+             "the same seed, input and thread count give the same result")
+QUIET_HELP = "no progress lines or bars on stderr (errors, warnings and the written paths still appear)"
+DEBUG_HELP = "show the Python traceback behind an error (as does the environment MI_LOOP_TRACEBACK=1)"
+
+
+def flag(name: str) -> str:
+    """The command-line flag of an option field (``'n_vertices'`` -> ``'--vertices'``)."""
+    return FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors are one line on stderr."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+class _Version(argparse.Action):
+    """``--version``: mi_loop's version and the installed Mitsuba and Dr.Jit, without importing them."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from importlib import metadata
+
+        import mi_loop
+
+        def version(name):
+            try:
+                return metadata.version(name)
+            except metadata.PackageNotFoundError:
+                return "not installed"
+
+        print(f"mi-loop {mi_loop.__version__} (mitsuba {version('mitsuba')}, drjit {version('drjit')})")
+        parser.exit(0)
+
+
+def _common(top: bool) -> argparse.ArgumentParser:
+    """``--quiet`` and ``--debug``; after the subcommand they must not reset a value given before it."""
+    p = argparse.ArgumentParser(add_help=False)
+    extra = {} if top else {"default": argparse.SUPPRESS}
+    p.add_argument("--quiet", action="store_true", help=QUIET_HELP, **extra)
+    p.add_argument("--debug", action="store_true", help=DEBUG_HELP, **extra)
+    return p
+
+
+def _variant(p) -> None:
+    p.add_argument("--variant", default=DEFAULT_VARIANT,
+                   help="Mitsuba variant, a JIT autodiff one: llvm_ad_* (CPU) or cuda_ad_* (GPU) "
+                        "(default %(default)s)")
+
+
+def positive(text: str) -> int:
+    """argparse type: an integer > 0."""
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
+
+
+def level(text: str) -> int:
+    """argparse type: a tessellation level in 0..6."""
+    value = int(text)
+    if not 0 <= value <= 6:
+        raise argparse.ArgumentTypeError(f"expected a level in 0..6, got {text}")
+    return value
+
+
+def _render_options(p) -> None:
+    p.add_argument("--level", type=level, default=3, help="4**level triangles per control face (default 3)")
+    p.add_argument("--resolution", type=positive, default=256, help="image width and height (default 256)")
+    p.add_argument("--spp", type=positive, default=64, help="samples per pixel (default 64)")
+    _variant(p)
+
+
+def _template_options(p, options) -> None:
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--vertices", dest="n_vertices", type=int, metavar="N", default=options.n_vertices,
+                       help="control vertices of the automatic template (default %(default)s)")
+    group.add_argument("--template", type=Path, metavar="PATH",
+                       help="control mesh to start from instead, in the data's units and position")
+
+
+def _fit_parser(sub, common) -> None:
+    o = FitOptions
+    p = sub.add_parser("fit", parents=[common], help="fit a Loop control mesh to a point cloud or mesh")
+    p.add_argument("input", type=Path, nargs="?",
+                   help="points (PLY/XYZ/PTS/NPZ; normals estimated when missing) or mesh (PLY/OBJ/OFF); "
+                        "omit with --demo")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    _template_options(p, o)
+    p.add_argument("--alpha", type=float, default=o.alpha,
+                   help="ARAP weight (default %(default)s; raise it for noisy data)")
+    p.add_argument("--h0", type=float, default=o.h0,
+                   help="IMLS radius in the unit box (default: from the point spacing)")
+    p.add_argument("--cover", type=float, default=o.cover,
+                   help="coverage weight: data points pull their nearest limit samples (default %(default)s; "
+                        "0: off)")
+    p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
+    p.add_argument("--iterations", dest="max_iterations", type=int, metavar="N", default=o.max_iterations,
+                   help="iteration cap; the fit usually converges earlier (default %(default)s)")
+    p.add_argument("--tolerance", type=float, default=o.tolerance,
+                   help="relative improvement below which the fit has converged (default %(default)s)")
+    p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(""))
+    p.add_argument("--demo", action="store_true", help="fit the built-in noisy torus point cloud (no input file)")
+    _variant(p)
+
+
+def _sequence_parser(sub, common) -> None:
+    o = SequenceOptions
+    p = sub.add_parser("fit-sequence", parents=[common], help="fit one control mesh to every frame of a sequence")
+    p.add_argument("frames", type=Path, nargs="+",
+                   help="an NPZ (vertices (T,V,3), faces), or frame files / directories / quoted globs")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    _template_options(p, o)
+    p.add_argument("--poisson-template", action="store_true",
+                   help="build the automatic template by screened Poisson even when the first frame is a mesh")
+    p.add_argument("--views", type=int, default=o.views, help="cameras around the subject (default %(default)s)")
+    p.add_argument("--views-per-iteration", type=int, metavar="K",
+                   help=f"random views rendered per iteration, at most --views (default {o.views_per_iteration}, "
+                        "or --views if fewer)")
+    p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,
+                   help="image size (default %(default)s)")
+    p.add_argument("--spp", type=int, default=o.spp, help="samples per pixel of the renders (default %(default)s)")
+    p.add_argument("--beta", type=float, default=o.beta, help="image-loss weight (default %(default)s)")
+    p.add_argument("--alpha", type=float, default=o.alpha, help="ARAP weight (default %(default)s)")
+    p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
+    p.add_argument("--cover", type=float, default=o.cover,
+                   help="coverage weight: data points pull their nearest samples (default %(default)s; 0: off)")
+    p.add_argument("--loss", choices=["l1", "l2"], default=o.loss,
+                   help="pixel loss of the image term: mean absolute (l1, default) or mean squared (l2) "
+                        "difference between the render and the target render")
+    p.add_argument("--mode", choices=["shading", "silhouette"], default=o.mode,
+                   help="shaded images (default) or silhouettes only")
+    p.add_argument("--iterations", dest="geo_iterations", type=int, metavar="N", default=o.geo_iterations,
+                   help="geometric iterations per frame (default %(default)s)")
+    p.add_argument("--image-iterations", dest="joint_iterations", type=int, metavar="N", default=o.joint_iterations,
+                   help="iterations with the image term per frame (default %(default)s)")
+    p.add_argument("--points", dest="n_points", type=int, metavar="N", default=o.n_points,
+                   help="points sampled on every mesh frame for the geometric terms (default %(default)s); "
+                        "point-cloud frames are used as they are")
+    exclusive = p.add_mutually_exclusive_group()
+    exclusive.add_argument("--no-image", action="store_true", help="geometric terms only (baseline)")
+    exclusive.add_argument("--image-only", action="store_true", help="image term (+ ARAP) only (baseline)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="bit-reproducible image term: the reverse render runs on one thread (slower)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue after the last finished frame, bit for bit as an uninterrupted run "
+                        "(with the options stored in OUTDIR/sequence.json)")
+    p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(", of the views and of the "
+                                                                                "frames' samples"))
+    _variant(p)
+
+
+def _compare_epilog() -> str:
+    lines = [(f"FITTED with more than {CONTROL_VERTEX_LIMIT:,} vertices is measured as a plain mesh unless "
+              f"--control is given; otherwise as a control mesh (its limit surface at level {LEVEL})."), ""]
+    for group, entries in DEFINITIONS.items():
+        lines.append(f"{group}:")
+        lines += [f"  {key}: {text}" for key, text in entries.items()]
+    return "\n".join(lines)
+
+
+def _compare_parser(sub, common) -> None:
+    p = sub.add_parser("compare", parents=[common], help="distances between a fitted surface and a target",
+                       epilog=_compare_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="Two-sided distances (and, for a target mesh, the Neural Parametric "
+                                   "Surfaces metrics P2S, HD, NAE) between FITTED and TARGET, as JSON.")
+    p.add_argument("fitted", type=Path, help="control mesh (its limit surface is measured) or a plain mesh")
+    p.add_argument("target", type=Path, help="target points or mesh")
+    how = p.add_mutually_exclusive_group()
+    how.add_argument("--mesh", action="store_true", help="measure FITTED as a plain triangle mesh")
+    how.add_argument("--control", action="store_true",
+                     help="measure FITTED's limit surface, however many vertices it has")
+    p.add_argument("--json", type=Path, help="also write the numbers to this JSON file")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``mi-loop`` parser with all subcommands."""
+    parser = _Parser(prog="mi-loop", parents=[_common(top=True)],
+                     description="Exact Loop subdivision limit surfaces in Mitsuba 3.")
+    parser.add_argument("--version", action=_Version, help="print the versions of mi_loop, Mitsuba, Dr.Jit")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    common = _common(top=False)
+
+    demo = sub.add_parser("demo", parents=[common], help="render the limit surface of a procedural control mesh")
+    demo.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    demo.add_argument("--shape", choices=sorted(datasets.CONTROL_MESHES), default="blob")
+    _render_options(demo)
+
+    render = sub.add_parser("render", parents=[common], help="render the limit surface of a control mesh file")
+    render.add_argument("control", type=Path, help="control mesh (PLY, OBJ or OFF)")
+    render.add_argument("-o", "--output", required=True, type=Path, help="PNG file to write")
+    render.add_argument("--creases", default="", help="sharp edges as vertex pairs, e.g. '0 1, 1 2'")
+    _render_options(render)
+
+    _fit_parser(sub, common)
+    _sequence_parser(sub, common)
+    _compare_parser(sub, common)
+
+    control = sub.add_parser("control", parents=[common], help="write a procedural control mesh")
+    control.add_argument("name", choices=sorted(datasets.CONTROL_MESHES))
+    control.add_argument("-o", "--output", required=True, type=Path, help="PLY file to write")
+    return parser
