@@ -63,10 +63,7 @@ def _fit(P, N, template, options: FitOptions, log):
     with log.bar("fitting") as update:
         result = fit(P, N, template=template, progress=lambda i, n, E: update(i, n, f"E={E:.3e}"),
                      **asdict(options))
-    n = result.params["iterations"]
-    # TODO(lead): a FitResult flag would be exact; iterations skipped by a divergence recovery
-    # are not in the history, so a run that recovered and then hit the cap reads as converged.
-    converged = n < options.max_iterations
+    n, converged = result.params["iterations"], result.converged
     how = (f"converged after {n} iterations (best energy improved by less than {options.tolerance:g})"
            if converged else f"stopped at the iteration cap ({n}) before converging; raise --iterations")
     log.say(f"fitted {len(result.V)} control vertices: {how} ({result.timings['total']:.1f} s)")

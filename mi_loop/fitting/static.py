@@ -57,6 +57,11 @@ class FitResult:
         Seconds per stage.
     params : dict
         Parameters actually used (after automatic choices).
+    info : dict
+        What the template was built from (``info["template"]``).
+    converged : bool
+        True when a stopping rule ended the loop (no more relative improvement
+        than ``tolerance``); False when it ran into ``max_iterations``.
     """
 
     V: np.ndarray
@@ -66,6 +71,7 @@ class FitResult:
     timings: dict
     params: dict
     info: dict = field(default_factory=dict)
+    converged: bool = False
 
     def limit_mesh(self, level: int = 3):
         """Dense limit mesh ``(V_lim, F_lim, N_lim)`` of the fitted surface (NumPy)."""
@@ -199,8 +205,8 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     timings["energies"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    V, history = _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress,
-                           coverage, cover)
+    V, history, converged = _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress,
+                                      coverage, cover)
     timings["optimisation"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
     params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
@@ -208,7 +214,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
               "max_iterations": max_iterations, "tolerance": tolerance, "cover": cover, "seed": seed,
               "iterations": len(history["total"]), "normalisation_scale": norm.scale}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
-                     {"template": tinfo})
+                     {"template": tinfo}, converged)
 
 
 def _check_template(template):
@@ -287,7 +293,7 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
         if it - best_at > patience:
             decays += 1
             if decays > 3:
-                break
+                return best_V, history, True
             lr *= 0.5
             best_at = it
             opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
@@ -296,6 +302,6 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
         if it > window and history["total"][-window - 1] > 0:
             old = min(history["total"][:-window])
             if old - best_E < tolerance * old:
-                break
+                return best_V, history, True
         opt.step()
-    return best_V, history
+    return best_V, history, False

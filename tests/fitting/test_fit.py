@@ -334,3 +334,11 @@ def test_fit_rejects_zero_iterations(cloud):
 def test_fit_rejects_a_template_that_is_not_a_pair(cloud):
     with pytest.raises(ValueError, match=r"fit\(\).*template"):
         fit(*cloud, template=small_template()[0])
+
+
+def test_fit_says_whether_it_converged(cloud):
+    """A stopping rule ends a normal fit early (converged); a cap of 5 iterations does not."""
+    done = fit(*cloud, template=small_template(), max_iterations=400)
+    assert done.converged and done.params["iterations"] < 400
+    capped = fit(*cloud, template=small_template(), max_iterations=5)
+    assert not capped.converged and capped.params["iterations"] == 5
