@@ -63,7 +63,7 @@ FIT_OPTIONS: dict = {}                                 # --cover: passed to ever
 
 # -- helpers -------------------------------------------------------------------
 def load() -> str:
-    return "load %.2f %.2f %.2f" % os.getloadavg()
+    return "load {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
 def header() -> str:

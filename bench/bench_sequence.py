@@ -62,7 +62,7 @@ LABELS = {"imls": "IMLS only", "image": "IMLS + image", "dr": "image only"}
 
 
 def load() -> str:
-    return "load %.2f %.2f %.2f" % os.getloadavg()
+    return "load {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
 # -- simulated capture -----------------------------------------------------------
@@ -95,10 +95,10 @@ def resample(V, F, seed: int, edge_fraction: float = 0.4, face_fraction: float =
     out = []
     for f in F:
         for k in range(3):
-            i, j, l = int(f[k]), int(f[(k + 1) % 3]), int(f[(k + 2) % 3])
+            i, j, o = int(f[k]), int(f[(k + 1) % 3]), int(f[(k + 2) % 3])
             m = lookup.get((min(i, j), max(i, j)))
             if m is not None:
-                out += [(i, m, l), (m, j, l)]
+                out += [(i, m, o), (m, j, o)]
                 break
         else:
             out.append(tuple(int(v) for v in f))
@@ -194,16 +194,16 @@ def cost_part(args):
     import drjit as dr
     import mitsuba as mi
 
+    from mi_loop.ad.operator import LimitOperator
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
-    from mi_loop.fitting.static import Normalisation, sample_parameters
     from mi_loop.energies.imls import IMLS
-    from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.ad.operator import LimitOperator
     from mi_loop.fitting.sequence import SequenceOptions
-    from mi_loop.mesh.geometry import vertex_normals
-    from mi_loop.render.multiview import Renderer
+    from mi_loop.fitting.static import Normalisation, sample_parameters
     from mi_loop.fitting.template import mesh_template
+    from mi_loop.mesh.geometry import vertex_normals
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.render.multiview import Renderer
     from mi_loop.render.variant import set_variant
 
     set_variant("llvm_ad_rgb")
@@ -286,12 +286,12 @@ def cost_part(args):
 
 def per_frame_costs(V, F_t, x0, F, norm, renderer):
     """Seconds of the per-frame steps of ``mi-loop fit-sequence`` that are not iterations."""
+    from mi_loop.app.sequence_job import _frame_metrics
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
-    from mi_loop.subdiv.masks import limit_mesh
-    from mi_loop.mesh.sampling import sample_surface
     from mi_loop.mesh.geometry import vertex_normals
-    from mi_loop.app.sequence_job import _frame_metrics
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.subdiv.masks import limit_mesh
 
     out, t = {}, time.perf_counter()
 
@@ -381,15 +381,15 @@ def probe_part(args):
     import mitsuba as mi
 
     from mi_loop import io
-    from mi_loop.fitting.static import Normalisation, sample_parameters
-    from mi_loop.subdiv.masks import limit_mesh
-    from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.metrics import two_sided
     from mi_loop.ad.operator import LimitOperator
     from mi_loop.fitting.sequence import SequenceOptions
+    from mi_loop.fitting.static import Normalisation, sample_parameters
     from mi_loop.mesh.geometry import vertex_normals
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.metrics import two_sided
     from mi_loop.render.multiview import Renderer
     from mi_loop.render.variant import set_variant
+    from mi_loop.subdiv.masks import limit_mesh
 
     set_variant("llvm_ad_rgb")
     run = RESULTS / args.seq / f"imls{args.tag}"
@@ -420,7 +420,7 @@ def probe_part(args):
         renderer = Renderer(x0, F, box, options.rig)
         targets = renderer.targets(Vn, Ft, vertex_normals(Vn, Ft))
 
-        def gradient(seed, k):
+        def gradient(seed, k, renderer=renderer, targets=targets):
             x = mi.Float(x0.ravel().astype(np.float32))
             dr.enable_grad(x)
             renderer.backward(x, [k], targets, seed=seed)

@@ -30,11 +30,11 @@ from tqdm import trange
 import mi_loop
 from mi_loop import datasets, io, render
 from mi_loop.energies.arap import ARAP
-from mi_loop.subdiv.limit import limit_matrix
-from mi_loop.metrics import two_sided
 from mi_loop.fitting.sequence import SequenceOptions
 from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.metrics import two_sided
 from mi_loop.render.multiview import Renderer
+from mi_loop.subdiv.limit import limit_matrix
 
 OUT = Path(__file__).resolve().parent.parent / "out"
 TARGET = Path(__file__).resolve().parents[2] / "shared" / "data" / "static" / "spot.obj"

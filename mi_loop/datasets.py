@@ -222,7 +222,7 @@ def noisy_torus_points(n_points: int = 20_000, noise: float = 0.005, outliers: f
     P = clean + N * rng.normal(0, noise * diag, (len(clean), 1))
     n_out = int(round(outliers * n_points))
     lo, hi = clean.min(0), clean.max(0)
-    O = rng.uniform(lo, hi, (n_out, 3))
-    On = rng.standard_normal((n_out, 3))
-    On /= np.linalg.norm(On, axis=1, keepdims=True)
-    return np.concatenate([P, O]), np.concatenate([N, On]), clean
+    P_out = rng.uniform(lo, hi, (n_out, 3))
+    N_out = rng.standard_normal((n_out, 3))
+    N_out /= np.linalg.norm(N_out, axis=1, keepdims=True)
+    return np.concatenate([P, P_out]), np.concatenate([N, N_out]), clean

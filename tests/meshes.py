@@ -1,9 +1,14 @@
-"""Small deterministic test meshes for the mi_loop subdivision tests.
+"""Small deterministic test meshes for the subdivision oracles, and the unperturbed tetrahedron.
 
-Every builder returns a ``TestMesh``: ``V (n, 3) float64``, ``F (m, 3) int64``
-(consistently oriented), ``creases`` in the mi_loop format (None, an (c, 2)
-int array, or (E, sharpness)). Vertex positions are perturbed with a fixed
-seed so that no symmetry hides a wrong weight.
+Every builder returns a :class:`TestMesh`: ``V (n, 3) float64``, ``F (m, 3)
+int64`` (consistently oriented), ``creases`` in the mi_loop format (None, an
+(c, 2) int array, or (E, sharpness)). Vertex positions are perturbed with a
+fixed seed so that no symmetry hides a wrong weight. :data:`MESHES` holds them
+all by name (the test ids of the oracle tests).
+
+Kept apart from ``helpers.py``: this is the corpus the subdivision, operator
+and energy tests run over (data, not utilities); one module for both would
+hold over 600 lines, against the ~400 of the style guide.
 """
 from __future__ import annotations
 
@@ -15,6 +20,20 @@ import numpy as np
 
 @dataclass(frozen=True)
 class TestMesh:
+    """A named test mesh of the subdivision oracles.
+
+    Attributes
+    ----------
+    name : str
+        Unique name (the test id).
+    V : (n, 3) float64 NumPy array
+        Vertices, perturbed with a fixed seed so that no symmetry hides a wrong weight.
+    F : (m, 3) int64 NumPy array
+        Consistently oriented triangles.
+    creases : None, (c, 2) int NumPy array or ((c, 2) int, (c,) float) tuple
+        Creases in the mi_loop format: none, infinitely sharp edges, or edges and sharpness.
+    """
+
     name: str
     V: np.ndarray
     F: np.ndarray
@@ -23,7 +42,14 @@ class TestMesh:
     __test__ = False  # not a pytest test class
 
 
+#: The regular tetrahedron, unperturbed: vertices (float64) and consistently oriented faces.
+TET_V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
+TET_F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+TET_V.flags.writeable = TET_F.flags.writeable = False     # shared by many tests: never edited in place
+
+
 def _perturb(V, seed: int, scale: float = 0.1) -> np.ndarray:
+    """``V`` plus ``scale`` times standard normal noise drawn with ``seed``."""
     rng = np.random.default_rng(seed)
     return np.asarray(V, dtype=float) + scale * rng.standard_normal(np.shape(V))
 
@@ -38,22 +64,21 @@ def _orient_outward(V, F) -> np.ndarray:
     return F
 
 
-# ---------------------------------------------------------------- closed
-
-
 def tetrahedron() -> TestMesh:
-    V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
-    F = _orient_outward(V, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
-    return TestMesh("tetrahedron", _perturb(V, 1), F)
+    """Closed: four valence-3 vertices."""
+    F = _orient_outward(TET_V, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+    return TestMesh("tetrahedron", _perturb(TET_V, 1), F)
 
 
 def octahedron() -> TestMesh:
+    """Closed: six valence-4 vertices."""
     V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
     F = [[x, y, z] for x in (0, 1) for y in (2, 3) for z in (4, 5)]
     return TestMesh("octahedron", _perturb(V, 2), _orient_outward(V, F))
 
 
 def _icosahedron_raw():
+    """Unperturbed unit icosahedron ``(V, F)``, faces outward."""
     t = (1 + math.sqrt(5)) / 2
     V = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0],
                   [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
@@ -66,19 +91,17 @@ def _icosahedron_raw():
 
 
 def icosahedron() -> TestMesh:
+    """Closed: twelve valence-5 vertices."""
     V, F = _icosahedron_raw()
     return TestMesh("icosahedron", _perturb(V, 3), F)
 
 
 def bipyramid(n: int) -> TestMesh:
-    """Two apexes of valence n next to n equator vertices of valence 4."""
+    """Closed: two apexes of valence n next to n equator vertices of valence 4."""
     ang = 2 * math.pi * np.arange(n) / n
     V = np.vstack([np.c_[np.cos(ang), np.sin(ang), np.zeros(n)], [[0, 0, 1.2], [0, 0, -1.2]]])
     F = [[i, (i + 1) % n, n] for i in range(n)] + [[(i + 1) % n, i, n + 1] for i in range(n)]
     return TestMesh(f"bipyramid{n}", _perturb(V, 10 + n, 0.05), _orient_outward(V, F))
-
-
-# ------------------------------------------------------------------ open
 
 
 def fan_disc(n: int) -> TestMesh:
@@ -118,14 +141,20 @@ def lattice_points(nx: int, ny: int, h: float = 1.0) -> np.ndarray:
     return h * np.c_[i + 0.5 * j, j * math.sqrt(3) / 2]
 
 
-def grid(nx: int = 6, ny: int = 5) -> TestMesh:
+def _bumpy_lattice(nx: int, ny: int, seed: int) -> np.ndarray:
+    """Lattice points of spacing 0.5 lifted to heights 0.2 N(0, 1) drawn with ``seed``."""
     XY = lattice_points(nx, ny, 0.5)
-    rng = np.random.default_rng(70)
-    V = np.c_[XY, 0.2 * rng.standard_normal(len(XY))]
-    return TestMesh(f"grid{nx}x{ny}", _perturb(V, 71, 0.03), grid_faces(nx, ny))
+    rng = np.random.default_rng(seed)
+    return np.c_[XY, 0.2 * rng.standard_normal(len(XY))]
+
+
+def grid(nx: int = 6, ny: int = 5) -> TestMesh:
+    """Open: a bumpy regular lattice (valence 6 inside, boundary and corners around)."""
+    return TestMesh(f"grid{nx}x{ny}", _perturb(_bumpy_lattice(nx, ny, 70), 71, 0.03), grid_faces(nx, ny))
 
 
 def open_cylinder(n: int = 7, rows: int = 3) -> TestMesh:
+    """Open: a twisted cylinder of ``rows`` rings of ``n`` vertices, two boundary loops."""
     ang = 2 * math.pi * np.arange(n) / n
     V = np.vstack([np.c_[np.cos(ang + 0.5 * r * 2 * math.pi / n), np.sin(ang + 0.5 * r * 2 * math.pi / n),
                          np.full(n, 0.8 * r)] for r in range(rows)])
@@ -147,9 +176,6 @@ def icosahedron_cap() -> TestMesh:
     remap = -np.ones(len(V), dtype=np.int64)
     remap[keep] = np.arange(len(keep))
     return TestMesh("icosahedron_cap", _perturb(V[keep], 90), remap[F])
-
-
-# --------------------------------------------------------------- creased
 
 
 def creased_cube() -> TestMesh:
@@ -187,11 +213,8 @@ def icosahedron_dart() -> TestMesh:
 def grid_dart() -> TestMesh:
     """Regular lattice with a crease from the boundary ending at an interior vertex."""
     nx, ny = 7, 6
-    XY = lattice_points(nx, ny, 0.5)
-    rng = np.random.default_rng(130)
-    V = np.c_[XY, 0.2 * rng.standard_normal(len(XY))]
     E = np.array([[1 + nx * j, 1 + nx * (j + 1)] for j in range(3)])  # ends at vertex 1 + 3 nx
-    return TestMesh("grid_dart", V, grid_faces(nx, ny), E)
+    return TestMesh("grid_dart", _bumpy_lattice(nx, ny, 130), grid_faces(nx, ny), E)
 
 
 def mixed_sharpness() -> TestMesh:
@@ -203,12 +226,11 @@ def mixed_sharpness() -> TestMesh:
 
 
 def grid_semisharp(s: float) -> TestMesh:
+    """Regular lattice crossed boundary to boundary by a crease of sharpness ``s``."""
     nx, ny = 7, 6
-    XY = lattice_points(nx, ny, 0.5)
-    rng = np.random.default_rng(150)
-    V = np.c_[XY, 0.2 * rng.standard_normal(len(XY))]
     E = np.array([[2 + nx * j, 2 + nx * (j + 1)] for j in range(ny - 1)])
-    return TestMesh(f"grid_semisharp{s:g}", V, grid_faces(nx, ny), (E, np.full(len(E), float(s))))
+    return TestMesh(f"grid_semisharp{s:g}", _bumpy_lattice(nx, ny, 150), grid_faces(nx, ny),
+                    (E, np.full(len(E), float(s))))
 
 
 def all_meshes() -> list:
@@ -224,4 +246,6 @@ def all_meshes() -> list:
     return meshes
 
 
+#: Every test mesh by name.
 MESHES = {m.name: m for m in all_meshes()}
+

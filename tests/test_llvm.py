@@ -11,6 +11,8 @@ import pytest
 from mi_loop import _llvm
 from mi_loop._llvm import check_loaded_llvm, configure_llvm, find_libllvm, libllvm_version
 
+from helpers import run_python
+
 HINT = r"apt-get install libllvm19"
 
 
@@ -122,14 +124,6 @@ def test_check_accepts_llvm_19():
     assert check_loaded_llvm(modules={"drjit": fake_drjit((19, 1, 7))}, environ={}) == 19
 
 
-def run_python(code, **env):
-    """Run ``code`` in a fresh interpreter (the venv's), with extra environment variables."""
-    import os
-
-    full = {**os.environ, **env}
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=full)
-
-
 def test_import_loads_neither_drjit_nor_mitsuba_and_limit_matrix_works_without_llvm():
     """With a libLLVM that cannot load, ``import mi_loop`` and the NumPy limit still work."""
     code = ("import sys, numpy as np, mi_loop\n"
@@ -137,7 +131,7 @@ def test_import_loads_neither_drjit_nor_mitsuba_and_limit_matrix_works_without_l
             "V, F = datasets.blob()\n"
             "W = limit_matrix(F, len(V), np.array([0, 1]), np.array([[0.2, 0.3], [0.1, 0.1]]))\n"
             "print(W.shape, 'drjit' in sys.modules, 'mitsuba' in sys.modules)")
-    result = run_python(code, DRJIT_LIBLLVM_PATH="/nonexistent/libLLVM.so")
+    result = run_python(code, timeout=120, DRJIT_LIBLLVM_PATH="/nonexistent/libLLVM.so")
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["(2,", "42)", "False", "False"]
 
@@ -148,7 +142,7 @@ def test_set_variant_with_llvm_15_stops_with_one_line_instead_of_crashing():
     code = ("import mi_loop\n"
             "try:\n    mi_loop.set_variant('llvm_ad_rgb')\n"
             "except RuntimeError as exc:\n    print('refused:', exc)\n")
-    result = run_python(code, DRJIT_LIBLLVM_PATH="/usr/lib/x86_64-linux-gnu/libLLVM-15.so")
+    result = run_python(code, timeout=120, DRJIT_LIBLLVM_PATH="/usr/lib/x86_64-linux-gnu/libLLVM-15.so")
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("refused: mi_loop needs libLLVM >= 16")
     assert "loaded LLVM 15" in result.stdout and "apt-get install libllvm19" in result.stdout

@@ -12,12 +12,14 @@ FENCE = re.compile(r"```(\w*)\n(.*?)```", re.S)
 
 
 def section(title: str) -> str:
+    """The body of the README's ``## title`` section."""
     match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", README, re.S | re.M)
     assert match, f"README has no '## {title}' section"
     return match.group(1)
 
 
 def commands(block: str) -> list[str]:
+    """The non-blank, non-comment lines of a shell block, stripped."""
     return [line.strip() for line in block.splitlines() if line.strip() and not line.strip().startswith("#")]
 
 
@@ -29,10 +31,11 @@ def test_quick_start_is_one_block_of_two_commands():
     assert "/work/shared" not in main_job
 
 
-def test_ci_runs_the_readme_test_command():
+def test_ci_runs_the_readme_test_command_then_ruff():
+    """.ci/run runs the README's test command exactly as written, then the linter."""
     _, tests = commands(FENCE.findall(section("Quick start"))[0][1])
     ci = (REPO / ".ci" / "run").read_text()
-    assert commands(ci)[-1] == tests
+    assert commands(ci)[-2:] == [tests, ".venv/bin/ruff check ."]
 
 
 PYTHON_SNIPPETS = [code for lang, code in FENCE.findall(README) if lang == "python"]

@@ -79,7 +79,7 @@ class ControlPoints:
         self.points = dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, self.n))
 
     @classmethod
-    def of(cls, x, n: int | None = None, func: str = "ControlPoints") -> "ControlPoints":
+    def of(cls, x, n: int | None = None, func: str = "ControlPoints") -> ControlPoints:
         """``x`` itself if it is a :class:`ControlPoints` (of ``n`` points), else ``ControlPoints(x, n)``."""
         if isinstance(x, cls):
             if n is not None and x.n != n:

@@ -26,11 +26,29 @@ MAX_CENTRE_OFFSET = 0.25
 
 
 def load_input(path: Path, log):
-    """Oriented points of INPUT and a target for the pictures; ``(P, N, target, info)``.
+    """Read ``mi-loop fit``'s INPUT as oriented points, and a target for the pictures.
 
-    ``target`` is ``('mesh', V, F)`` for a mesh file, else ``('points', P, N)``;
-    ``info`` is :func:`~mi_loop.io.points.load_oriented_points`'s, plus
-    ``normals_estimated`` when the file had no normals.
+    Parameters
+    ----------
+    path : pathlib.Path
+        A point cloud or mesh file (see :func:`~mi_loop.io.points.load_oriented_points`).
+    log : Reporter
+        Where the note about estimated normals goes.
+
+    Returns
+    -------
+    P, N : (k, 3) float64 NumPy arrays
+        Points and unit normals (estimated and oriented when the file has none).
+    target : tuple
+        ``('mesh', V, F)`` for a mesh file, else ``('points', P, N)``.
+    info : dict
+        :func:`~mi_loop.io.points.load_oriented_points`'s, plus
+        ``normals_estimated`` when the file had no normals.
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, unreadable or holds no usable points (one-line message).
     """
     from mi_loop.io.points import load_oriented_points
     from mi_loop.mesh.points import estimate_normals
@@ -101,6 +119,17 @@ def read_template(path: Path, P, where: str, log):
     A file with polygons of more than three corners (a quad cage) is split into
     triangle fans on reading; a one-line warning names how many.
 
+    Parameters
+    ----------
+    path : pathlib.Path
+        Control mesh file (PLY, OBJ, OFF, glTF/GLB).
+    P : (k, 3) float NumPy array
+        The data points, in the units the template must share (:func:`check_template_frame`).
+    where : str
+        Who reads it, for messages (``"fit --template 'cage.ply'"``).
+    log : Reporter
+        Where the warning about split polygons goes.
+
     Returns
     -------
     V : (n, 3) float64 numpy array
@@ -109,6 +138,12 @@ def read_template(path: Path, P, where: str, log):
         ``source``, ``path``, ``n_vertices``, ``n_faces``, ``split_polygons``
         (the file's faces that were split into triangles), ``size_ratio``,
         ``centre_offset``.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read, the mesh is invalid (:func:`~mi_loop.mesh.topology.validate_mesh`)
+        or it is not in the data's frame.
     """
     from mi_loop.mesh.topology import validate_mesh
 

@@ -33,7 +33,25 @@ DEBUG_HELP = "show the Python traceback behind an error (as does the environment
 
 
 def flag(name: str) -> str:
-    """The command-line flag of an option field (``'n_vertices'`` -> ``'--vertices'``)."""
+    """Return the command-line flag of an option field, for error messages.
+
+    Parameters
+    ----------
+    name : str
+        A field of :class:`~mi_loop.fitting.options.FitOptions` or
+        :class:`~mi_loop.fitting.options.SequenceOptions`.
+
+    Returns
+    -------
+    str
+        Its flag: from :data:`FLAGS` where the names differ, else ``--`` and the
+        name with dashes.
+
+    Examples
+    --------
+    >>> flag("n_vertices"), flag("views_per_iteration")
+    ('--vertices', '--views-per-iteration')
+    """
     return FLAGS.get(name, "--" + name.replace("_", "-"))
 
 

@@ -16,7 +16,24 @@ LOSS_TERMS = {"imls": "IMLS (mean f^2)", "cover": "cover * coverage", "arap": "a
 
 
 def plain(x):
-    """JSON-friendly copy of ``x`` (NumPy scalars and arrays, tuples and paths to Python)."""
+    """Return a JSON-friendly copy of ``x``: NumPy scalars and arrays, tuples and paths as Python values.
+
+    Parameters
+    ----------
+    x : object
+        A value, or dicts and lists of them (nested to any depth).
+
+    Returns
+    -------
+    object
+        Dicts with ``str`` keys, lists for tuples and arrays, Python numbers for
+        NumPy scalars, ``str`` for paths; anything else unchanged.
+
+    Examples
+    --------
+    >>> plain({"n": np.int64(3), "x": np.arange(2), 1: (0.5,)})
+    {'n': 3, 'x': [0, 1], '1': [0.5]}
+    """
     from pathlib import PurePath
 
     if isinstance(x, dict):
@@ -43,7 +60,18 @@ def _figure(width: float, height: float):
 
 
 def figure_pixels(fig) -> np.ndarray:
-    """Rasterise a Matplotlib figure to an ``(h, w, 3)`` uint8 array."""
+    """Rasterise a Matplotlib figure with the Agg canvas.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        A figure (its canvas is replaced by an Agg canvas if it has another).
+
+    Returns
+    -------
+    (h, w, 3) uint8 NumPy array
+        RGB pixels at the figure's size and dpi.
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
@@ -92,7 +120,19 @@ def loss_figure(history: dict, title: str = "energy per iteration"):
 
 
 def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
-    """:func:`loss_figure` as an ``(h, w, 3)`` uint8 numpy array."""
+    """Return :func:`loss_figure` as pixels.
+
+    Parameters
+    ----------
+    history : dict of lists
+        :attr:`mi_loop.fitting.static.FitResult.history`.
+    title : str, optional
+        Title of the plot.
+
+    Returns
+    -------
+    (h, w, 3) uint8 NumPy array
+    """
     return figure_pixels(loss_figure(history, title))
 
 
@@ -148,9 +188,23 @@ def strip_figure(strips):
 
 
 def splat_mesh(P: np.ndarray, N: np.ndarray, radius: float):
-    """One small triangle per oriented point, facing its normal, for rendering point clouds.
+    """Return one small triangle per oriented point, facing its normal, for rendering point clouds.
 
-    Returns ``(V (3N, 3), F (N, 3))``.
+    Parameters
+    ----------
+    P : (k, 3) float NumPy array
+        Points.
+    N : (k, 3) float NumPy array
+        Their normals (any non-zero length).
+    radius : float
+        Distance of each triangle's corners from its point.
+
+    Returns
+    -------
+    V : (3k, 3) float64 NumPy array
+        Corners, three per point.
+    F : (k, 3) int NumPy array
+        One triangle per point, counter-clockwise seen from its normal.
     """
     N = N / np.linalg.norm(N, axis=1, keepdims=True)
     helper = np.where(np.abs(N[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
@@ -171,8 +225,14 @@ def side_by_side(target, fit_V, fit_F, *, resolution: int = 320, spp: int = 32,
     ----------
     target : tuple
         ``('mesh', V, F)`` or ``('points', P, N)`` (rendered as oriented splats).
-    fit_V, fit_F : numpy arrays
+    fit_V, fit_F : (n, 3) float and (m, 3) int NumPy arrays
         Fitted control mesh; its limit surface is rendered by ``loop_subdiv``.
+    resolution : int, optional
+        Height of the picture and width of each half, pixels.
+    spp : int, optional
+        Samples per pixel.
+    azimuth, elevation : float, optional
+        Camera direction, degrees.
 
     Returns
     -------

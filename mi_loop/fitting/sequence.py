@@ -28,9 +28,52 @@ __all__ = ["SequenceOptions", "fit_frame"]   # SequenceOptions lives in mi_loop.
 
 def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOptions,
               frame: int, lr: float, progress=None):
-    """Fit one frame from the control points ``x0`` (normalised ``(n, 3)``); returns ``(V, info)``.
+    """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
-    ``targets`` are the target renders (None without the image term).
+    Adam on ``E_t`` (module docstring): ``options.geo_iterations`` steps of
+    the geometric terms, then ``options.joint_iterations`` steps that add the
+    image term over ``options.views_per_iteration`` random views per step.
+
+    Parameters
+    ----------
+    x0 : (n, 3) float64 NumPy array
+        Start control points (the previous frame's fit), in normalised units;
+        also the ARAP rest shape.
+    F : (m, 3) int64 NumPy array
+        Control faces (one connectivity for the whole sequence).
+    points, normals : (k, 3) float64 NumPy arrays or None
+        The frame's oriented points, normalised like ``x0``; None when
+        ``options.geometric`` is False.
+    op : LimitOperator
+        Limit samples of ``F`` for the distance terms (Dr.Jit; positions only suffice).
+    targets : list of mi.TensorXf or None
+        Target renders of every view (:meth:`Renderer.targets
+        <mi_loop.render.multiview.Renderer.targets>`); None without the image term.
+    renderer : Renderer or None
+        The sequence's renderer (fixed cameras); None without the image term.
+    options : SequenceOptions
+        Weights, iteration counts, views per step, seed.
+    frame : int
+        Frame index: seeds the choice of views and the renders' samplers.
+    lr : float
+        Largest Adam step (normalised units); the step starts from the warm
+        start's IMLS residual, capped by ``lr``.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after every iteration.
+
+    Returns
+    -------
+    V : (n, 3) float64 NumPy array
+        Fitted control points, normalised units.
+    info : dict
+        ``history`` (``geo`` and ``image`` energy per iteration; ``image`` is
+        NaN in the geometric steps), ``time_render`` (seconds in the reverse
+        renders), ``iterations``.
+
+    Raises
+    ------
+    FitError
+        If an energy is not finite (the message names the frame and the iteration).
     """
     import drjit as dr
     import mitsuba as mi

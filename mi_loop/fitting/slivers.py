@@ -18,7 +18,25 @@ __all__ = ["angles", "remove_slivers"]
 
 
 def angles(V, F):
-    """Corner angles in degrees, ``(m, 3)``; corner ``c`` is at ``F[:, c]``."""
+    """Return the corner angles of every triangle in degrees.
+
+    Parameters
+    ----------
+    V : (n, 3) float NumPy array
+        Vertices.
+    F : (m, 3) int NumPy array
+        Triangles.
+
+    Returns
+    -------
+    (m, 3) float64 NumPy array
+        Angle of corner ``c`` of face ``f`` (at vertex ``F[f, c]``), in [0, 180].
+
+    Examples
+    --------
+    >>> angles(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])).round(6).tolist()
+    [[90.0, 45.0, 45.0]]
+    """
     T = V[F]
     e1 = np.roll(T, -1, axis=1) - T
     e2 = np.roll(T, -2, axis=1) - T
@@ -28,9 +46,36 @@ def angles(V, F):
 
 
 def remove_slivers(V, F, Vp, Fp, min_angle, rounds: int = 8):
-    """Raise the smallest angle to ``min_angle``: flips, relaxation on the reference surface ``(Vp, Fp)``, collapses.
+    """Raise the smallest angle of a closed triangle mesh towards ``min_angle``.
 
-    Returns ``(V, F, stats)`` with ``stats`` = ``min_angle`` (achieved), ``flips``, ``collapses``.
+    Each round flips the edge opposite the large angle of caps, relaxes the
+    vertices of bad faces tangentially (projected back onto the reference
+    surface ``(Vp, Fp)``) and collapses the shortest edge of the needles that
+    remain, where the topology allows.
+
+    Parameters
+    ----------
+    V : (n, 3) float64 NumPy array
+        Vertices of the mesh to clean (closed, consistently oriented).
+    F : (m, 3) int64 NumPy array
+        Its triangles.
+    Vp : (p, 3) float64 NumPy array
+        Vertices of the reference surface (the Poisson surface or the refined input mesh).
+    Fp : (q, 3) int64 NumPy array
+        Its triangles.
+    min_angle : float
+        Target smallest corner angle, degrees.
+    rounds : int, optional
+        Most rounds of the three operations; stops early once no angle is below ``min_angle``.
+
+    Returns
+    -------
+    V : (n', 3) float64 NumPy array
+        Vertices (fewer after collapses).
+    F : (m', 3) int64 NumPy array
+        Triangles.
+    stats : dict
+        ``min_angle`` (the smallest angle reached, degrees), ``flips``, ``collapses``.
     """
     flips = collapses = 0
     for _ in range(rounds):

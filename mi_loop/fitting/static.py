@@ -10,31 +10,50 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mi_loop.subdiv.masks import limit_mesh, vertex_samples
-from mi_loop.subdiv.tessellation import tessellate
 from mi_loop.errors import FitError
 from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, OptionError
 from mi_loop.mesh.checks import check_oriented_points
 from mi_loop.mesh.geometry import mean_edge_length
 from mi_loop.mesh.topology import validate_mesh
+from mi_loop.subdiv.masks import limit_mesh, vertex_samples
+from mi_loop.subdiv.tessellation import tessellate
+
+__all__ = ["FitResult", "Normalisation", "fit", "sample_parameters"]
 
 
 @dataclass
 class Normalisation:
-    """Map data to the unit box (largest extent 1, centred at 0) and back."""
+    """Map data to the unit box (largest extent 1, centred at 0) and back.
+
+    Attributes
+    ----------
+    centre : (3,) float64 NumPy array
+        Centre of the data's bounding box.
+    scale : float
+        Largest extent of the data's bounding box.
+
+    Examples
+    --------
+    >>> norm = Normalisation.of(np.array([[0.0, 0, 0], [4, 2, 0]]))
+    >>> norm.forward([[4.0, 2, 0]]).tolist(), norm.inverse([[0.5, 0.25, 0]]).tolist()
+    ([[0.5, 0.25, 0.0]], [[4.0, 2.0, 0.0]])
+    """
 
     centre: np.ndarray
     scale: float
 
     @classmethod
-    def of(cls, P: np.ndarray) -> "Normalisation":
+    def of(cls, P: np.ndarray) -> Normalisation:
+        """The normalisation of points ``P`` (``(k, 3)`` float NumPy array)."""
         lo, hi = P.min(0), P.max(0)
         return cls((lo + hi) / 2.0, float((hi - lo).max()))
 
     def forward(self, X):
+        """``(X - centre) / scale``: from the data's units to the unit box."""
         return (np.asarray(X) - self.centre) / self.scale
 
     def inverse(self, X):
+        """``X * scale + centre``: from the unit box back to the data's units."""
         return np.asarray(X) * self.scale + self.centre
 
 
@@ -79,11 +98,31 @@ class FitResult:
 
 
 def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
-    """Limit-sample parameters ``(face_ids, uv)`` for a sampling ``mode``.
+    """Return the limit-sample parameters ``(face_ids, uv)`` of a sampling ``mode``.
 
-    ``'vertices'``: one sample per control vertex (its limit point, the
-    thesis's default); ``'level1'``: the points of a level-1 tessellation;
-    ``'random'``: four uniformly random points per face.
+    Parameters
+    ----------
+    F : (m, 3) int NumPy array
+        Control faces.
+    n_vertices : int
+        Number of control vertices.
+    mode : {'vertices', 'level1', 'random'}
+        ``'vertices'``: one sample per control vertex (its limit point, the
+        thesis's default); ``'level1'``: the points of a level-1
+        tessellation; ``'random'``: four uniformly random points per face.
+    seed : int, optional
+        Seed of ``'random'`` (NumPy ``default_rng``).
+
+    Returns
+    -------
+    face_ids : (k,) int NumPy array
+    uv : (k, 2) float64 NumPy array
+        Barycentric ``(u, v)`` in each face, ``u, v >= 0``, ``u + v <= 1``.
+
+    Raises
+    ------
+    ValueError
+        If ``mode`` is not one of :data:`~mi_loop.fitting.options.SAMPLE_MODES`.
     """
     if mode == "vertices":
         return vertex_samples(F, n_vertices)
@@ -160,13 +199,13 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     FitError
         If the optimisation diverges (non-finite energy) and cannot recover.
     """
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: F401  (loaded before the stage timers start)
+    import mitsuba as mi  # noqa: F401
 
+    from mi_loop.ad.operator import LimitOperator
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
-    from mi_loop.ad.operator import LimitOperator
 
     t_all = time.perf_counter()
     timings = {}

@@ -27,8 +27,7 @@ import time
 import numpy as np
 
 from mi_loop.fitting.slivers import remove_slivers
-from mi_loop.mesh.geometry import (connected_components, euler_characteristic, face_areas,
-                                   largest_component, weld)
+from mi_loop.mesh.geometry import connected_components, euler_characteristic, face_areas, largest_component, weld
 from mi_loop.mesh.topology import validate_mesh
 
 __all__ = ["make_template", "mesh_template", "poisson_depth"]

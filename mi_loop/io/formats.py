@@ -239,7 +239,8 @@ def read_off(path, func: str = "read_off"):
         fail(func, f"an OFF header and counts in '{path}'", "an empty file")
     k0, head = rows[0]
     if head[0].upper().endswith("OFF"):
-        if head[0].upper() not in ("OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STNOFF") or "BINARY" in map(str.upper, head):
+        if (head[0].upper() not in ("OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STNOFF")
+                or "BINARY" in map(str.upper, head)):
             fail(func, f"an ASCII 3-D OFF file (header OFF, COFF, NOFF or CNOFF) in '{path}'",
                  f"line {k0} = {' '.join(head)!r}")
         head, rows = head[1:], rows[1:]

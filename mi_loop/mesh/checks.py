@@ -86,7 +86,7 @@ def check_oriented_points(P, N, func: str) -> tuple[np.ndarray, np.ndarray]:
     Traceback (most recent call last):
     ...
     ValueError: f(): expected non-zero normals, got normal 0 = [0.0, 0.0, 0.0] (1 such normals); estimate normals (mi_loop.mesh.points.estimate_normals) or drop those points
-    """
+    """  # noqa: E501 (a doctest's exception line cannot be wrapped)
     P = check_points(P, func)
     if N is None:
         fail(func, f"normals of shape {P.shape}", "None; estimate them with mi_loop.mesh.points.estimate_normals")

@@ -80,7 +80,8 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
              f"sharpness {s[bad[0]]:g} at crease {bad[0]}")
     bad = np.flatnonzero((E < 0).any(1) | (E >= n).any(1) | (E[:, 0] == E[:, 1]))
     if len(bad):
-        fail(func, f"creases as pairs of distinct vertex indices in [0, {n})", f"crease {bad[0]} = {E[bad[0]].tolist()}")
+        fail(func, f"creases as pairs of distinct vertex indices in [0, {n})",
+             f"crease {bad[0]} = {E[bad[0]].tolist()}")
     keys = np.unique(np.sort(np.stack([F.ravel(), F[:, [1, 2, 0]].ravel()], 1), 1) @ [n, 1])
     ck = np.sort(E, 1) @ [n, 1]
     bad = np.flatnonzero(~np.isin(ck, keys))
@@ -132,7 +133,7 @@ def validate_faces(F, n_vertices: int, func: str = "validate_mesh") -> np.ndarra
     Traceback (most recent call last):
     ...
     ValueError: validate_mesh(): expected consistently oriented faces (each directed edge in one face), got edge (0, 1) used in the same direction by faces 0 and 1
-    """
+    """  # noqa: E501 (a doctest's exception line cannot be wrapped)
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         fail(func, "faces of shape (m, 3) with m > 0 (triangles only)", f"shape {F.shape}")
@@ -271,7 +272,7 @@ def validate_mesh(V, F, func: str = "validate_mesh"):
     Traceback (most recent call last):
     ...
     ValueError: validate_mesh(): expected no two faces on the same three vertices, got faces 0 = [0, 1, 2] and 1 = [0, 2, 1]: a closed two-triangle component, whose limit surface is flat and doubly covered and whose refinement has double edges; remove it
-    """
+    """  # noqa: E501 (a doctest's exception line cannot be wrapped)
     V = np.asarray(V)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
         fail(func, "vertices of shape (n, 3) with n > 0", f"shape {V.shape}")

@@ -175,7 +175,7 @@ class Renderer:
         One backward pass per view: Mitsuba's differentiable render releases
         the geometry's AD graph (vertex positions back to ``x``) during its
         reverse pass, so a second view in the same pass would stop at the
-        vertex positions (checked in ``tests/test_sequence.py``).
+        vertex positions (checked in ``tests/render/test_multiview.py``).
         """
         import drjit as dr
 

@@ -146,8 +146,8 @@ def _shape_class(variant: str):
 
     from mi_loop import io
     from mi_loop.ad.operator import LimitOperator
-    from mi_loop.subdiv.tessellation import tessellate
     from mi_loop.mesh.topology import validate_mesh
+    from mi_loop.subdiv.tessellation import tessellate
 
     class LoopSubdivMesh(mi.Mesh):
         """Loop limit surface of a control mesh, tessellated uniformly.

@@ -101,7 +101,8 @@ def _phantom_matrix(missing: np.ndarray) -> np.ndarray:
                 found = True
                 break
         if not found:
-            raise RuntimeError(f"phantom_matrices(): internal error: no phantom rule for slot {x} with missing {missing.tolist()}")
+            raise RuntimeError(f"phantom_matrices(): internal error: no phantom rule for slot {x} with missing "
+                               f"{missing.tolist()}")
     return Phi
 
 

@@ -78,14 +78,18 @@ def subdivide_topology(topo: Topology):
     crease = kind == 1
     vidx = np.arange(n)
     centre = np.where(smooth, 1.0 - val * beta, np.where(crease, 0.75, 1.0))
-    rows.append(vidx); cols.append(vidx); vals.append(centre)
+    rows.append(vidx)
+    cols.append(vidx)
+    vals.append(centre)
     for a, b in ((0, 1), (1, 0)):
         v, w = E[:, a], E[:, b]
         w_smooth = np.where(smooth[v], beta[v], 0.0)
         w_crease = np.where(crease[v] & sharp_edge, 0.125, 0.0)
         wt = w_smooth + w_crease
         keep = wt != 0
-        rows.append(v[keep]); cols.append(w[keep]); vals.append(wt[keep])
+        rows.append(v[keep])
+        cols.append(w[keep])
+        vals.append(wt[keep])
 
     # Edge points: opposite vertices from the two incident faces.
     opp = np.full((e, 2), -1, dtype=np.int64)
@@ -100,9 +104,13 @@ def subdivide_topology(topo: Topology):
     smooth_e = ~sharp_edge
     end_w = np.where(smooth_e, 0.375, 0.5)
     for a in (0, 1):
-        rows.append(new); cols.append(E[:, a]); vals.append(end_w)
+        rows.append(new)
+        cols.append(E[:, a])
+        vals.append(end_w)
     for a in (0, 1):
-        rows.append(new[smooth_e]); cols.append(opp[smooth_e, a]); vals.append(np.full(smooth_e.sum(), 0.125))
+        rows.append(new[smooth_e])
+        cols.append(opp[smooth_e, a])
+        vals.append(np.full(smooth_e.sum(), 0.125))
 
     S = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(n + e, n))

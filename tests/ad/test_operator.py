@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import mi_loop
-from meshes import bipyramid, creased_cube, open_cylinder
+
+from helpers import as_numpy, exactly, flat, point3f
+from meshes import TET_F, TET_V, bipyramid, creased_cube, open_cylinder
 
 
 def _samples(F, k, seed=0):
@@ -20,41 +22,35 @@ def _samples(F, k, seed=0):
     return rng.integers(0, len(F), k), uv
 
 
-def _np(p):
-    return np.array(p, dtype=np.float64).T
-
-
 @pytest.mark.parametrize("mesh", [bipyramid(7), creased_cube(), open_cylinder()], ids=lambda m: m.name)
 def test_operator_matches_scipy_forward_and_adjoint(mesh, jit_variant):
     fid, uv = _samples(mesh.F, 400)
     op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv, creases=mesh.creases)
-    x = mi.Float(mesh.V.ravel().astype(np.float32))
-    dr.enable_grad(x)
+    x = flat(mesh.V, grad=True)
     P, du, dv = op.evaluate(x)
     scale = np.abs(mesh.V).max()
     for got, d in ((P, None), (du, "u"), (dv, "v")):
         want = op.matrix(d) @ mesh.V
-        np.testing.assert_allclose(_np(got), want, atol=2e-6 * scale * max(1, np.abs(want).max()))
+        np.testing.assert_allclose(as_numpy(got), want, atol=2e-6 * scale * max(1, np.abs(want).max()))
     # adjoint identity <W x, y> = <x, W^T y> through reverse-mode AD
     y = np.random.default_rng(1).standard_normal((len(fid), 3))
-    dr.backward(dr.sum(dr.sum(P * mi.Point3f(y.T.astype(np.float32)))))
+    dr.backward(dr.sum(dr.sum(P * point3f(y))))
     g = np.array(dr.grad(x)).reshape(-1, 3)
     np.testing.assert_allclose(g, op.matrix().T @ y, rtol=1e-4, atol=1e-4 * np.abs(g).max())
     # forward mode: directional derivative equals W @ direction
-    x2 = mi.Float(mesh.V.ravel().astype(np.float32))
-    dr.enable_grad(x2)
+    x2 = flat(mesh.V, grad=True)
     d = np.random.default_rng(2).standard_normal(mesh.V.shape)
-    dr.set_grad(x2, mi.Float(d.ravel().astype(np.float32)))
+    dr.set_grad(x2, flat(d))
     P2 = op.positions(x2)
-    np.testing.assert_allclose(_np(dr.forward_to(P2)), op.matrix() @ d, atol=1e-4 * np.abs(d).max() * 4)
+    np.testing.assert_allclose(as_numpy(dr.forward_to(P2)), op.matrix() @ d, atol=1e-4 * np.abs(d).max() * 4)
 
 
 def test_tensor_input_equals_flat_input():
     mesh = bipyramid(5)
     fid, uv = _samples(mesh.F, 50)
     op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv)
-    a = _np(op.positions(mi.TensorXf(mesh.V.astype(np.float32))))
-    b = _np(op.positions(mi.Float(mesh.V.ravel().astype(np.float32))))
+    a = as_numpy(op.positions(mi.TensorXf(mesh.V.astype(np.float32))))
+    b = as_numpy(op.positions(flat(mesh.V)))
     np.testing.assert_array_equal(a, b)
 
 
@@ -77,8 +73,7 @@ def test_normal_loss_gradient_matches_central_differences():
         t = mi.Vector3f(target.T)
         return dr.sum(dr.sum(dr.square(P - t))) + 10.0 * dr.sum(dr.dot(N, t))
 
-    x = mi.Float(mesh.V.ravel().astype(np.float32))
-    dr.enable_grad(x)
+    x = flat(mesh.V, grad=True)
     L = loss(x)
     dr.backward(L)
     g = np.array(dr.grad(x), dtype=np.float64)
@@ -122,8 +117,7 @@ def test_gradient_of_two_branches_on_the_same_control_points():
     R = arap.rotations(mesh.V)
 
     def grad(parts):
-        x = mi.Float(mesh.V.ravel().astype(np.float32))
-        dr.enable_grad(x)
+        x = flat(mesh.V, grad=True)
         E = mi.Float(0.0)
         for part in parts:   # ARAP first: the order that lost the other branch
             E = E + (arap.energy(x, R) if part == "arap" else dr.sum(dr.squared_norm(op.positions(x))))
@@ -156,7 +150,7 @@ def test_two_gather_chains_from_one_variable_are_summed():
             src = shared if share else dr.gather(mi.Point3f, x, dr.arange(mi.UInt32, n))
             E = E + (b + 1) * dr.sum(dr.squared_norm(dr.gather(mi.Point3f, src, idx[b])))
         dr.backward(E)
-        return np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+        return as_numpy(dr.grad(x))
 
     for share in (False, True):
         err = np.abs(grad([0, 1], share) - grad([0], share) - grad([1], share)).max(0)
@@ -164,3 +158,21 @@ def test_two_gather_chains_from_one_variable_are_summed():
             assert err.max() < 1e-3, err
         else:
             assert err[2] > 1.0 and err[:2].max() < 1e-3, err
+
+
+def test_operator_rejects_wrong_control_points():
+    """Control points of the wrong count, shape or type (the operator's checks live in mi_loop.ad.control)."""
+    op = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]))
+    count = exactly("LimitOperator(): expected 12 control coordinates (4 points, xyz interleaved), got 9")
+    with pytest.raises(ValueError, match=count):
+        op.positions(mi.Float(np.zeros(9)))
+    with pytest.raises(ValueError, match=count):
+        op.positions(mi.TensorXf(np.zeros((3, 3))))
+    with pytest.raises(ValueError, match=exactly("LimitOperator(): expected a (n, 3) tensor of control points, "
+                                                 "got shape (4, 2)")):
+        op.positions(mi.TensorXf(np.zeros((4, 2))))
+    with pytest.raises(TypeError, match=r"^LimitOperator\(\): expected control points as mi\.Float .*, got list$"):
+        op.positions([1.0, 2.0])
+    op_p = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]), derivatives=False)
+    with pytest.raises(ValueError, match="built with derivatives=False"):
+        op_p.evaluate(mi.Float(TET_V.ravel()))

@@ -12,6 +12,8 @@ from mi_loop.ad.sparse import MAX_WIDTH, IndexMap, SegmentSum
 from mi_loop.datasets import icosphere
 from mi_loop.subdiv.tessellation import tessellate
 
+from helpers import flat, point3f
+
 
 def grad_of(f, x0, weights):
     """Gradient of ``sum(weights * f(x))`` at ``x0`` (NumPy float64)."""
@@ -62,11 +64,11 @@ def test_index_map_forward_mode_and_vectors():
     idx = rng.integers(0, 20, 500)
     table = IndexMap(idx, 20)
     P0 = rng.standard_normal((20, 3)).astype(np.float32)
-    x = mi.Point3f(*P0.T)
+    x = point3f(P0)
     dr.enable_grad(x)
     y = table(x)
     tangent = rng.standard_normal((20, 3)).astype(np.float32)
-    dr.set_grad(x, mi.Point3f(*tangent.T))
+    dr.set_grad(x, point3f(tangent))
     dr.forward_to(y)
     np.testing.assert_array_equal(np.array(dr.grad(y)).T, tangent[idx])
     np.testing.assert_array_equal(np.array(y).T, P0[idx])
@@ -105,8 +107,7 @@ def test_limit_operator_backward_is_bit_identical():
     w = [mi.Vector3f(*rng.standard_normal((3, len(fid))).astype(np.float32)) for _ in range(3)]
 
     def grad():
-        x = mi.Float(V.astype(np.float32).ravel())
-        dr.enable_grad(x)
+        x = flat(V, grad=True)
         P, du, dv = op.evaluate(x)
         dr.backward(dr.sum(dr.dot(P, w[0]) + dr.dot(du, w[1]) + dr.dot(dv, w[2])))
         return np.array(dr.grad(x))

@@ -1,30 +1,24 @@
-"""Tests of the ``mi-loop`` command line (mi_loop.app.cli)."""
-from __future__ import annotations
+"""The ``mi-loop`` command line (mi_loop.app.cli): demo, render and control, --version, --debug, --quiet, --variant.
 
-import subprocess
-import sys
-from pathlib import Path
+The parser itself is tested in test_parser.py, the fit, fit-sequence and
+compare jobs in test_fit_job.py, test_sequence_job.py and test_compare_job.py.
+"""
+from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import one_line_error
 from matplotlib import image as mpl_image
 
 import mi_loop
 from mi_loop import datasets, io
 from mi_loop.app.cli import main
 
-MI_LOOP = Path(sys.executable).with_name("mi-loop")
-
-
-def run(*args, timeout=300):
-    return subprocess.run([str(MI_LOOP), *args], capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL, check=False)
+from helpers import one_line_error, run_console, run_python
 
 
 def test_demo_writes_control_limit_and_render(tmp_path):
     out = tmp_path / "demo"
-    result = run("demo", "-o", str(out), "--resolution", "32", "--spp", "4", "--level", "1")
+    result = run_console("demo", "-o", str(out), "--resolution", "32", "--spp", "4", "--level", "1")
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and "[mi-loop" in result.stderr      # progress on stderr
     assert result.stdout.split() == [str(out / n) for n in ("control.ply", "limit.ply", "render.png")]
@@ -48,7 +42,7 @@ def test_demo_writes_control_limit_and_render(tmp_path):
 
 def test_console_script_error_is_one_line(tmp_path):
     (tmp_path / "file").write_text("x")
-    result = run("demo", "-o", str(tmp_path / "file" / "out"))
+    result = run_console("demo", "-o", str(tmp_path / "file" / "out"))
     assert result.returncode == 1
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
     assert result.stderr.startswith("mi-loop: error: ensure_writable_dir(): expected a directory that files can "
@@ -95,21 +89,6 @@ def test_control_writes_dataset(tmp_path, capsys):
     np.testing.assert_array_equal(F, datasets.torus()[1])
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["demo"], "the following arguments are required: -o/--output"),
-    (["demo", "-o", "x", "--level", "9"], "expected a level in 0..6, got 9"),
-    (["demo", "-o", "x", "--spp", "0"], "expected a positive integer, got 0"),
-    (["control", "cube", "-o", "x.ply"], "invalid choice: 'cube'"),
-    ([], "the following arguments are required: command"),
-])
-def test_usage_errors_are_one_line(capsys, argv, message):
-    with pytest.raises(SystemExit) as info:
-        main(argv)
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err and err.startswith("mi-loop")
-
-
 # -- global options: --version, --debug / MI_LOOP_TRACEBACK, --quiet, --variant -------
 
 
@@ -119,7 +98,7 @@ def test_version_names_mi_loop_mitsuba_and_drjit_without_importing_them():
     code = ("import sys\nfrom mi_loop.app.cli import main\n"
             "try:\n    main(['--version'])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
             "print('imported' if {'mitsuba', 'drjit'} & set(sys.modules) else 'not imported')\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    result = run_python(code, timeout=120)
     assert result.returncode == 0, result.stderr
     first, second = result.stdout.splitlines()
     assert first == (f"mi-loop {mi_loop.__version__} (mitsuba {metadata.version('mitsuba')}, "
@@ -148,19 +127,6 @@ def test_the_environment_variable_shows_the_traceback_too(tmp_path, capsys, monk
     one_line_error(capsys, argv)
 
 
-@pytest.mark.parametrize("command", [["demo", "-o", "x"], ["render", "c.ply", "-o", "x.png"],
-                                     ["fit", "--demo", "-o", "x"], ["fit-sequence", "f.npz", "-o", "x"],
-                                     ["compare", "a.ply", "b.ply"], ["control", "blob", "-o", "x.ply"]])
-def test_every_command_accepts_quiet_and_debug_before_or_after_it(command):
-    from mi_loop.app.parser import build_parser
-
-    parser = build_parser()
-    for argv in ([*command, "--quiet"], ["--quiet", *command]):
-        args = parser.parse_args(argv)
-        assert args.quiet is True and args.debug is False
-    assert parser.parse_args(command).quiet is False
-
-
 def test_quiet_silences_progress_but_not_the_written_paths(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--resolution", "16", "--spp", "1", "--level", "1", "--quiet"]) == 0
@@ -181,37 +147,3 @@ def test_an_unknown_variant_is_refused_with_the_usable_ones(tmp_path, capsys, co
                     "got 'scalar_rgb'")
     assert "llvm_ad_rgb" in line
     assert list(tmp_path.iterdir()) == []                                   # refused before any work
-
-
-def test_the_default_variant_is_the_package_default():
-    from mi_loop.app.parser import build_parser
-    from mi_loop.render.variant import DEFAULT_VARIANT
-
-    parser = build_parser()
-    for argv in (["demo", "-o", "x"], ["render", "c.ply", "-o", "x.png"], ["fit", "--demo", "-o", "x"],
-                 ["fit-sequence", "f.npz", "-o", "x"]):
-        assert parser.parse_args(argv).variant == DEFAULT_VARIANT
-
-
-def test_every_option_has_help_and_seed_loss_points_random_are_explained(capsys):
-    import argparse
-
-    from mi_loop.app.parser import build_parser
-
-    parser = build_parser()
-    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
-    for name, sub in commands.items():
-        for action in sub._actions:
-            if action.option_strings and action.dest not in ("help", "shape", "name"):
-                assert action.help, (name, action.option_strings)
-    texts = {}
-    for command in ("fit", "fit-sequence"):
-        with pytest.raises(SystemExit):
-            main([command, "--help"])
-        texts[command] = " ".join(capsys.readouterr().out.split())
-        assert "'random' four uniformly random points per control face, drawn once from --seed" in texts[command]
-        assert "--seed SEED random seed: of the automatic template's sampling and of --samples random" in texts[command]
-    assert "--loss {l1,l2} pixel loss of the image term: mean absolute (l1, default)" in texts["fit-sequence"]
-    assert "--points N points sampled on every mesh frame" in texts["fit-sequence"]
-    assert ("--deterministic bit-reproducible image term: the reverse render runs on one thread (slower)"
-            in texts["fit-sequence"])

@@ -7,25 +7,19 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from meshes import grid, icosahedron, open_cylinder
 from mi_loop.energies.arap import ARAP, cotangent_weights
-from mi_loop.ad.upload import upload_vec
+
+from helpers import as_numpy, flat, point3f
+from meshes import grid, icosahedron, open_cylinder
 
 MESHES = [icosahedron(), grid(), open_cylinder()]
 
 
-def _x(V):
-    """Control points on the device as a flat xyz-interleaved mi.Float with gradients."""
-    x = mi.Float(np.asarray(V, dtype=np.float32).ravel())
-    dr.enable_grad(x)
-    return x
-
-
 def _energy_and_grad(arap, V, R=None):
-    x = _x(V)
+    x = flat(V, grad=True)
     E = arap.energy(x, R)
     dr.backward(E)
-    return float(E[0]), np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+    return float(E[0]), as_numpy(dr.grad(x))
 
 
 def _energy_ref(arap, V, R):
@@ -140,7 +134,7 @@ def test_energy_accepts_point3f_and_reuses_kernels():
     rng = np.random.default_rng(12)
 
     def step(V):
-        x = upload_vec(mi.Point3f, V)
+        x = point3f(V)
         dr.enable_grad(x)
         E = arap.energy(x)                                    # R computed from x
         dr.backward(E)
@@ -160,13 +154,18 @@ def test_energy_accepts_point3f_and_reuses_kernels():
 
 
 @pytest.mark.parametrize("V, F, kwargs, match", [
-    (np.zeros((4, 2)), [[0, 1, 2]], {}, r"ARAP\(\): expected rest vertices of shape \(k, 3\) with k > 0, got shape \(4, 2\)"),
-    (np.zeros((0, 3)), [[0, 1, 2]], {}, r"ARAP\(\): expected rest vertices of shape \(k, 3\) with k > 0, got shape \(0, 3\)"),
+    (np.zeros((4, 2)), [[0, 1, 2]], {}, r"ARAP\(\): expected rest vertices of shape \(k, 3\) with k > 0, got shape "
+                                        r"\(4, 2\)"),
+    (np.zeros((0, 3)), [[0, 1, 2]], {}, r"ARAP\(\): expected rest vertices of shape \(k, 3\) with k > 0, got shape "
+                                        r"\(0, 3\)"),
     ([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], [[0, 1, 2]], {},
      r"ARAP\(\): expected finite rest vertices, got row 2 = \[nan, 1.0, 0.0\]"),
-    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], {}, r"ARAP\(\): expected face indices in \[0, 3\), got face 0 = \[0, 1, 3\]"),
-    ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], {}, r"ARAP\(\): expected rest faces of non-zero area \(cotangent weights\), got face 0 = \[0, 1, 2\] of zero area"),
-    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], {"min_weight": 0.0}, r"ARAP\(\): expected a finite min_weight > 0, got 0.0"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], {}, r"ARAP\(\): expected face indices in \[0, 3\), got face 0 = "
+                                                         r"\[0, 1, 3\]"),
+    ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], {}, r"ARAP\(\): expected rest faces of non-zero area \(cotangent "
+                                                         r"weights\), got face 0 = \[0, 1, 2\] of zero area"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], {"min_weight": 0.0}, r"ARAP\(\): expected a finite min_weight > "
+                                                                          r"0, got 0.0"),
 ])
 def test_constructor_errors(V, F, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -177,16 +176,17 @@ def test_energy_and_rotation_errors():
     mesh = icosahedron()
     arap = ARAP(mesh.V, mesh.F)
     n = len(mesh.V)
-    with pytest.raises(ValueError, match=rf"ARAP.energy\(\): expected {3 * n} control coordinates \({n} points, xyz interleaved\), got {3 * n - 3}"):
+    with pytest.raises(ValueError, match=rf"ARAP.energy\(\): expected {3 * n} control coordinates \({n} points, xyz "
+                                         rf"interleaved\), got {3 * n - 3}"):
         arap.energy(mi.Float(np.zeros(3 * n - 3, np.float32)))
     with pytest.raises(ValueError, match=rf"ARAP.energy\(\): expected {n} control points, got {n + 1}"):
         arap.energy(mi.Point3f(np.zeros((3, n + 1), np.float32)))
     with pytest.raises(TypeError, match=r"ARAP.energy\(\): expected control points as mi.Float \(3n\).*got list"):
         arap.energy(mesh.V.tolist())
     with pytest.raises(ValueError, match=rf"ARAP.energy\(\): expected R of shape \({n}, 3, 3\), got \(3, 3\)"):
-        arap.energy(_x(mesh.V), np.eye(3))
+        arap.energy(flat(mesh.V, grad=True), np.eye(3))
     with pytest.raises(ValueError, match=r"ARAP.energy\(\): expected finite rotations R .*got non-finite entries"):
-        arap.energy(_x(mesh.V), np.full((n, 3, 3), np.nan))
+        arap.energy(flat(mesh.V, grad=True), np.full((n, 3, 3), np.nan))
     V = mesh.V.copy()
     V[4, 1] = np.inf
     with pytest.raises(ValueError, match=r"ARAP.rotations\(\): expected finite control points, got point 4 = \[.*inf"):

@@ -7,16 +7,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mi_loop.energies.coverage import Coverage
-from mi_loop.datasets import icosphere
-from mi_loop.fitting.static import sample_parameters
-from mi_loop.energies.imls import IMLS
-from mi_loop.mesh.sampling import sample_surface
 from mi_loop.ad.operator import LimitOperator
+from mi_loop.datasets import icosphere
+from mi_loop.energies.coverage import Coverage
+from mi_loop.energies.imls import IMLS
+from mi_loop.fitting.static import sample_parameters
+from mi_loop.mesh.sampling import sample_surface
 
-
-def point3(A):
-    return mi.Point3f(*np.asarray(A, dtype=np.float32).T)
+from helpers import as_numpy, point3f
 
 
 def brute_nearest(P, Q):
@@ -41,14 +39,14 @@ def test_energy_and_gradient_match_numpy(cloud):
     np.testing.assert_array_equal(cover.nearest, j)
     n = N / np.linalg.norm(N, axis=1, keepdims=True)
     r = np.einsum("ij,ij->i", n, Q[j] - P)
-    q = point3(Q)
+    q = point3f(Q)
     dr.enable_grad(q)
     E = cover.energy(q)
     dr.backward(E)
     np.testing.assert_allclose(float(E[0]), np.mean(r ** 2), rtol=1e-5)
     expected = np.zeros_like(Q)
     np.add.at(expected, j, 2.0 / len(P) * r[:, None] * n)
-    grad = np.array(dr.grad(q), dtype=np.float64).T
+    grad = as_numpy(dr.grad(q))
     np.testing.assert_allclose(grad, expected, rtol=0, atol=1e-5 * np.abs(expected).max())
     assert (np.abs(expected[np.setdiff1d(np.arange(len(Q)), j)]) == 0).all()   # unused samples get none
 
@@ -61,7 +59,7 @@ def test_gradient_through_the_limit_operator_with_imls_is_the_sum_of_both():
     Vt, Ft = icosphere(3)
     P, N, _ = sample_surface(Vt, Ft, 3000, seed=1)
     op = LimitOperator(F, len(V), *sample_parameters(F, len(V), "level1"), derivatives=False)
-    Q0 = np.array(op.positions(mi.Float(x0)), dtype=np.float64).T
+    Q0 = as_numpy(op.positions(mi.Float(x0)))
     imls, cover = IMLS(P, N), Coverage(P, N)
     imls.update(Q0)
     cover.update(Q0)
@@ -72,7 +70,7 @@ def test_gradient_through_the_limit_operator_with_imls_is_the_sum_of_both():
         Q = op.positions(x)
         E = sum((t(Q) for t in terms), mi.Float(0.0))
         dr.backward(E)
-        return np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+        return as_numpy(dr.grad(x))
 
     g_imls = grad([lambda Q: imls.energy(Q, reduce="mean")])
     g_cover = grad([cover.energy])
@@ -89,9 +87,9 @@ def test_a_shared_tree_gives_the_same_weights(cloud):
 
 def test_coverage_pulls_the_fit_out_to_a_spike():
     """A unit sphere with a narrow bump 0.5 high: IMLS alone stops short of its tip; coverage reaches it."""
-    from mi_loop.subdiv.masks import limit_mesh
-    from mi_loop.mesh.sampling import closest_points
     from mi_loop.fitting.sequence import SequenceOptions, fit_frame
+    from mi_loop.mesh.sampling import closest_points
+    from mi_loop.subdiv.masks import limit_mesh
 
     Vt, Ft = icosphere(4)
     polar = np.arccos(np.clip(Vt[:, 1], -1, 1))
@@ -125,12 +123,14 @@ def test_isolated_points_are_left_out():
     cover.update(Q)
     kept = P[:900]
     expected = np.mean((Q[brute_nearest(kept, Q), 2] - kept[:, 2]) ** 2)
-    np.testing.assert_allclose(float(cover.energy(point3(Q))[0]), expected, rtol=1e-5)
+    np.testing.assert_allclose(float(cover.energy(point3f(Q))[0]), expected, rtol=1e-5)
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda P, N: Coverage(P[:, :2], N), r"Coverage\(\): expected points of shape \(k, 3\) with k > 0, got shape \(300, 2\)"),
-    (lambda P, N: Coverage(P, N[:-1]), r"Coverage\(\): expected normals of the points' shape \(300, 3\), got shape \(299, 3\)"),
+    (lambda P, N: Coverage(P[:, :2], N), r"Coverage\(\): expected points of shape \(k, 3\) with k > 0, got shape "
+                                         r"\(300, 2\)"),
+    (lambda P, N: Coverage(P, N[:-1]), r"Coverage\(\): expected normals of the points' shape \(300, 3\), got shape "
+                                       r"\(299, 3\)"),
     (lambda P, N: Coverage(np.where(np.arange(300)[:, None] == 7, np.nan, P), N),
      r"Coverage\(\): expected finite points, got row 7 = \[nan, nan, nan\]"),
     (lambda P, N: Coverage(P, np.where(np.arange(300)[:, None] == 4, 0.0, N)),
@@ -150,11 +150,12 @@ def test_energy_needs_a_matching_update(cloud):
     P, N, Q = cloud
     cover = Coverage(P, N)
     with pytest.raises(ValueError, match=r"Coverage.energy: call update\(Q\) first"):
-        cover.energy(point3(Q))
+        cover.energy(point3f(Q))
     cover.update(Q)
     with pytest.raises(ValueError, match=r"Coverage.energy: expected 80 samples \(as at the last update\), got 79"):
-        cover.energy(point3(Q[:-1]))
-    with pytest.raises(ValueError, match=r"Coverage.update\(\): expected samples of shape \(k, 3\) with k > 0, got shape \(80, 2\)"):
+        cover.energy(point3f(Q[:-1]))
+    with pytest.raises(ValueError, match=r"Coverage.update\(\): expected samples of shape \(k, 3\) with k > 0, got "
+                                         r"shape \(80, 2\)"):
         cover.update(Q[:, :2])
     Q[5, 0] = np.inf
     with pytest.raises(ValueError, match=r"Coverage.update\(\): expected finite samples, got row 5 = \[inf"):

@@ -2,17 +2,12 @@
 from __future__ import annotations
 
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 import pytest
 
-from mi_loop.ad.upload import upload_vec
 from mi_loop.energies.imls import IMLS
 
-
-def _p3(Q):
-    """Samples on the device (aligned upload, as a kernel output would be)."""
-    return upload_vec(mi.Point3f, np.asarray(Q, dtype=np.float64))
+from helpers import as_numpy, fibonacci_points, point3f
 
 
 def _plane(n_points=3000, seed=0):
@@ -25,15 +20,6 @@ def _plane(n_points=3000, seed=0):
     c = np.array([0.1, 0.2, -0.3])
     ab = rng.uniform(-1, 1, (n_points, 2))
     return c + ab[:, :1] * t1 + ab[:, 1:] * t2, nu, c, (t1, t2)
-
-
-def _sphere(n_points=4000):
-    """Fibonacci points on the unit sphere; normals = positions (outward)."""
-    i = np.arange(n_points) + 0.5
-    z = 1 - 2 * i / n_points
-    ang = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.c_[r * np.cos(ang), r * np.sin(ang), z]
 
 
 def _f_reference(im, Q):
@@ -53,16 +39,16 @@ def test_plane_gives_signed_distance():
     ab = rng.uniform(-0.8, 0.8, (200, 2))
     Q = c + ab[:, :1] * t1 + ab[:, 1:] * t2 + delta[:, None] * nu
     im.update(Q)
-    f = np.array(im.values(_p3(Q)))
+    f = np.array(im.values(point3f(Q)))
     # every term n.(x - p_i) equals the signed distance, so f does exactly (float32 rounding)
     np.testing.assert_allclose(f, delta, atol=2e-6)
-    E_sum, E_mean = im.energy(_p3(Q)), im.energy(_p3(Q), reduce="mean")
+    E_sum, E_mean = im.energy(point3f(Q)), im.energy(point3f(Q), reduce="mean")
     np.testing.assert_allclose(E_sum[0], np.sum(delta ** 2), rtol=1e-4)
     np.testing.assert_allclose(E_mean[0], np.mean(delta ** 2), rtol=1e-4)
 
 
 def test_sphere_within_curvature_bound():
-    P = _sphere()
+    P = fibonacci_points(4000)
     im = IMLS(P, P)
     rng = np.random.default_rng(2)
     dirs = rng.standard_normal((300, 3))
@@ -70,7 +56,7 @@ def test_sphere_within_curvature_bound():
     delta = rng.uniform(-0.05, 0.05, 300)
     Q = (1 + delta)[:, None] * dirs
     im.update(Q)
-    f = np.array(im.values(_p3(Q)), dtype=np.float64)
+    f = np.array(im.values(point3f(Q)), dtype=np.float64)
     # n_i.(x - p_i) = |x| cos(theta_i) - 1, so f - delta = -|x| (1 - <cos theta>)_phi, and a
     # neighbour within h of x has 1 - cos(theta) < (h^2 - delta^2) / (2 |x|):
     # -h^2 / 2 <= f - delta <= 0 (up to float32 rounding). h ~ 0.16 here, so |f - delta| < 0.013.
@@ -81,16 +67,16 @@ def test_sphere_within_curvature_bound():
 
 
 def test_gradient_matches_float64_central_differences():
-    P = _sphere(2000)
+    P = fibonacci_points(2000)
     im = IMLS(P, P)
     rng = np.random.default_rng(3)
-    Q = _sphere(2000)[::50] * rng.uniform(0.95, 1.05, (40, 1)) + 0.01 * rng.standard_normal((40, 3))
+    Q = fibonacci_points(2000)[::50] * rng.uniform(0.95, 1.05, (40, 1)) + 0.01 * rng.standard_normal((40, 3))
     im.update(Q)
-    Qd = _p3(Q)
+    Qd = point3f(Q)
     dr.enable_grad(Qd)
     E = im.energy(Qd)
     dr.backward(E)
-    g = np.array(dr.grad(Qd), dtype=np.float64).T
+    g = as_numpy(dr.grad(Qd))
     np.testing.assert_allclose(E[0], np.sum(_f_reference(im, Q) ** 2), rtol=1e-4)
     # float64 reference with fixed lists; step 1e-6 -> truncation ~1e-12, rounding ~1e-10
     eps, fd = 1e-6, np.zeros_like(Q)
@@ -106,21 +92,21 @@ def test_gradient_matches_float64_central_differences():
 
 
 def test_gradient_matches_float32_central_differences():
-    P = _sphere(2000)
+    P = fibonacci_points(2000)
     im = IMLS(P, P)
     rng = np.random.default_rng(4)
-    Q = 1.03 * _sphere(500)[::10] + 0.01 * rng.standard_normal((50, 3))
+    Q = 1.03 * fibonacci_points(500)[::10] + 0.01 * rng.standard_normal((50, 3))
     im.update(Q)
-    Qd = _p3(Q)
+    Qd = point3f(Q)
     dr.enable_grad(Qd)
     dr.backward(im.energy(Qd))
-    g = np.array(dr.grad(Qd), dtype=np.float64).T
+    g = as_numpy(dr.grad(Qd))
     # Directional derivative of the float32 energy itself. E ~ 0.05, float32 rounding of E
     # ~ 1e-8; step 1e-3 keeps that below 1e-5 of the slope while the O(step^2) truncation
     # (f is smooth on the scale h ~ 0.2) stays ~1e-5: tolerance 1e-3 relative.
     u = rng.standard_normal(Q.shape)
     step = 1e-3
-    Ep, Em = (im.energy(_p3(Q + s * step * u))[0] for s in (1, -1))
+    Ep, Em = (im.energy(point3f(Q + s * step * u))[0] for s in (1, -1))
     np.testing.assert_allclose((Ep - Em) / (2 * step), np.sum(g * u), rtol=1e-3)
 
 
@@ -139,7 +125,7 @@ def test_radius_grows_where_points_are_sparse():
     # the sample far from all data hits the cap, finds nothing, and gets f = 0
     assert im.growths[4] == im.max_growths and im.radius[4] == 0.05 * 2.0 ** im.max_growths
     assert im.n_isolated == 1
-    f = np.array(im.values(_p3(Q)))
+    f = np.array(im.values(point3f(Q)))
     np.testing.assert_allclose(f, [0.01, -0.02, 0.02, -0.03, 0.0], atol=2e-6)
 
 
@@ -151,18 +137,18 @@ def test_radius_shrinks_to_keep_every_weighted_point():
     d = np.sort(np.linalg.norm(P - Q[0], axis=1))
     np.testing.assert_allclose(im.radius, d[16])                    # (K+1)-th neighbour
     assert np.all(im.valid.sum(1) == 16)
-    np.testing.assert_allclose(np.array(im.values(_p3(Q))), 0.05, atol=2e-6)
+    np.testing.assert_allclose(np.array(im.values(point3f(Q))), 0.05, atol=2e-6)
 
 
 def test_lists_keep_their_shape_and_kernels_are_reused():
-    P = _sphere(3000)
+    P = fibonacci_points(3000)
     im = IMLS(P, P)
     rng = np.random.default_rng(6)
-    Q = 1.02 * _sphere(300)
+    Q = 1.02 * fibonacci_points(300)
 
     def step(Q):
         im.update(Q)
-        Qd = _p3(Q)
+        Qd = point3f(Q)
         dr.enable_grad(Qd)
         E = im.energy(Qd, reduce="mean")
         dr.backward(E)
@@ -190,25 +176,34 @@ def test_automatic_h0_follows_the_spacing():
 
 
 @pytest.mark.parametrize("points, normals, kwargs, match", [
-    (np.zeros((20, 2)), np.zeros((20, 2)), {}, r"IMLS\(\): expected points of shape \(k, 3\) with k > 0, got shape \(20, 2\)"),
-    (np.zeros((0, 3)), np.zeros((0, 3)), {}, r"IMLS\(\): expected points of shape \(k, 3\) with k > 0, got shape \(0, 3\)"),
-    (np.ones((20, 3)), np.ones((19, 3)), {}, r"IMLS\(\): expected normals of the points' shape \(20, 3\), got shape \(19, 3\)"),
+    (np.zeros((20, 2)), np.zeros((20, 2)), {}, r"IMLS\(\): expected points of shape \(k, 3\) with k > 0, got shape "
+                                               r"\(20, 2\)"),
+    (np.zeros((0, 3)), np.zeros((0, 3)), {}, r"IMLS\(\): expected points of shape \(k, 3\) with k > 0, got shape \(0, "
+                                             r"3\)"),
+    (np.ones((20, 3)), np.ones((19, 3)), {}, r"IMLS\(\): expected normals of the points' shape \(20, 3\), got shape "
+                                             r"\(19, 3\)"),
     (np.r_[np.ones((5, 3)), [[np.nan, 0, 0]], np.ones((14, 3))], np.ones((20, 3)), {},
      r"IMLS\(\): expected finite points, got row 5 = \[nan, 0.0, 0.0\]"),
     (np.ones((20, 3)), np.r_[np.ones((7, 3)), np.zeros((1, 3)), np.ones((12, 3))], {},
      r"IMLS\(\): expected non-zero normals, got normal 7 = \[0.0, 0.0, 0.0\]"),
     (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": 0.0},
      r"IMLS\(\): expected a finite h0 > 0 \(or None for automatic\), got 0.0"),
-    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": -1.0}, r"expected a finite h0 > 0 .*, got -1.0"),
-    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": np.inf}, r"expected a finite h0 > 0 .*, got inf"),
-    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": "0.1"}, r"expected a finite h0 > 0 .*, got '0.1'"),
-    (np.random.default_rng(0).random((5, 3)), np.ones((5, 3)), {}, r"IMLS\(\): expected at least min_neighbors = 12 points, got 5"),
+    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": -1.0},
+     r"expected a finite h0 > 0 .*, got -1.0"),
+    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": np.inf},
+     r"expected a finite h0 > 0 .*, got inf"),
+    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"h0": "0.1"}, r"expected a finite h0 > 0 .*, got "
+                                                                                r"'0.1'"),
+    (np.random.default_rng(0).random((5, 3)), np.ones((5, 3)), {}, r"IMLS\(\): expected at least min_neighbors = 12 "
+                                                                   r"points, got 5"),
     (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"max_neighbors": 4},
      r"IMLS\(\): expected an integer max_neighbors >= min_neighbors = 12, got 4"),
-    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"growth": 1.0}, r"IMLS\(\): expected a finite growth > 1, got 1.0"),
+    (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"growth": 1.0}, r"IMLS\(\): expected a finite growth "
+                                                                                  r"> 1, got 1.0"),
     (np.random.default_rng(0).random((20, 3)), np.ones((20, 3)), {"max_growths": -1},
      r"IMLS\(\): expected a non-negative integer max_growths, got -1"),
-    (np.ones((20, 3)), np.ones((20, 3)), {}, r"IMLS\(\): expected points that do not all coincide .*pass h0 explicitly"),
+    (np.ones((20, 3)), np.ones((20, 3)), {},
+     r"IMLS\(\): expected points that do not all coincide .*pass h0 explicitly"),
 ])
 def test_constructor_errors(points, normals, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -216,18 +211,19 @@ def test_constructor_errors(points, normals, kwargs, match):
 
 
 def test_update_and_energy_errors():
-    P = _sphere(200)
+    P = fibonacci_points(200)
     im = IMLS(P, P)
     with pytest.raises(ValueError, match="call update"):
-        im.values(_p3(P[:4]))
-    with pytest.raises(ValueError, match=r"IMLS.update\(\): expected samples of shape \(k, 3\) with k > 0, got shape \(4, 2\)"):
+        im.values(point3f(P[:4]))
+    with pytest.raises(ValueError, match=r"IMLS.update\(\): expected samples of shape \(k, 3\) with k > 0, got shape "
+                                         r"\(4, 2\)"):
         im.update(np.zeros((4, 2)))
     with pytest.raises(ValueError, match=r"IMLS.update\(\): expected finite samples, got row 1 = \[nan, 0.0, 0.0\]"):
         im.update(np.array([[0, 0, 0], [np.nan, 0, 0]]))
     im.update(P[:4])
     with pytest.raises(ValueError, match="expected 4 samples"):
-        im.energy(_p3(P[:5]))
+        im.energy(point3f(P[:5]))
     with pytest.raises(TypeError, match="must be mi.Point3f"):
         im.values(P[:4])
     with pytest.raises(ValueError, match="reduce must be"):
-        im.energy(_p3(P[:4]), reduce="max")
+        im.energy(point3f(P[:4]), reduce="max")

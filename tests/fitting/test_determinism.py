@@ -8,17 +8,19 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
+import pytest
 
 from mi_loop import datasets
 from mi_loop.ad.operator import LimitOperator
-from mi_loop.fitting.sequence import fit_frame
 from mi_loop.fitting.options import SequenceOptions
+from mi_loop.fitting.sequence import fit_frame
 from mi_loop.fitting.static import fit, sample_parameters
 from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
 from mi_loop.mesh.sampling import sample_surface
 from mi_loop.render.multiview import Renderer
 
 
+@pytest.mark.slow
 def test_static_fits_are_bit_identical():
     assert dr.thread_count() > 1          # the regime this guards against needs several threads
     P, N, _ = datasets.noisy_torus_points(20_000)
@@ -59,6 +61,7 @@ def test_geometric_sequence_fits_are_bit_identical():
         np.testing.assert_array_equal(x, y, err_msg=f"frame {t}")
 
 
+@pytest.mark.slow
 def test_image_term_with_deterministic_is_bit_identical():
     options = SequenceOptions(views=4, views_per_iteration=2, resolution=48, spp=4, target_spp=16,
                               geo_iterations=10, joint_iterations=6, deterministic=True)

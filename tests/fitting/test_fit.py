@@ -9,36 +9,18 @@ import pytest
 from mi_loop import datasets
 from mi_loop.errors import FitError
 from mi_loop.fitting.static import SAMPLE_MODES, FitResult, fit, sample_parameters
-from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.metrics import two_sided
+from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.subdiv.tessellation import tessellate
 
+from helpers import limit_surface, sphere_points, torus_error
+
 SPHERE_R = 2.0
-
-
-def noisy_sphere(n=3000, radius=SPHERE_R, noise=0.01, seed=0):
-    """Points on a sphere of ``radius`` displaced radially by N(0, noise), and their exact normals."""
-    rng = np.random.default_rng(seed)
-    D = rng.normal(size=(n, 3))
-    D /= np.linalg.norm(D, axis=1, keepdims=True)
-    return D * (radius + noise * rng.normal(size=(n, 1))), D
 
 
 def sphere_error(V):
     """Analytic distance of points to the sphere of radius SPHERE_R at the origin."""
     return np.abs(np.linalg.norm(V, axis=1) - SPHERE_R)
-
-
-def torus_error(V, R=1.0, r=0.4):
-    """Analytic distance of points to the torus of radii (R, r) around the z axis."""
-    rho = np.hypot(V[:, 0], V[:, 1])
-    return np.abs(np.hypot(rho - R, V[:, 2]) - r)
-
-
-def limit_points(V, F, level=3):
-    """Limit-surface points and triangles of control mesh (V, F) at a tessellation level."""
-    fid, uv, F_t = tessellate(F, level)
-    return limit_matrix(F, len(V), fid, uv) @ V, F_t
 
 
 def small_template():
@@ -58,8 +40,8 @@ def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
     assert abs(len(result.V) - 120) <= 12                     # "within a few percent" of the request
     assert result.info["template"]["genus"] == 1
 
-    V_fit, F_fit = limit_points(result.V, result.F)
-    V_tpl, F_tpl = limit_points(result.V_template, result.F)
+    V_fit, F_fit = limit_surface(result.V, result.F)
+    V_tpl, F_tpl = limit_surface(result.V_template, result.F)
     e_fit, e_tpl = torus_error(V_fit), torus_error(V_tpl)
     assert e_fit.mean() < 0.5 * e_tpl.mean(), (e_fit.mean(), e_tpl.mean())
     assert e_fit.mean() < 0.01                                  # 1 % of the major radius
@@ -81,7 +63,7 @@ def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
 
 
 def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
-    P, N = noisy_sphere()
+    P, N = sphere_points(3000, radius=SPHERE_R, noise=0.01)
     V0, F0 = small_template()
     calls = []
     result = fit(P, N, template=(V0, F0), max_iterations=80,
@@ -95,8 +77,8 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
     assert result.params["samples"] == "level1" and result.params["n_samples"] == n_level1
     assert result.params["alpha"] == 0.001
 
-    e_fit = sphere_error(limit_points(result.V, F0)[0])
-    e_tpl = sphere_error(limit_points(V0, F0)[0])
+    e_fit = sphere_error(limit_surface(result.V, F0)[0])
+    e_tpl = sphere_error(limit_surface(V0, F0)[0])
     assert e_tpl.mean() > 0.5                                   # the template starts far inside
     assert e_fit.mean() < 0.05 * e_tpl.mean(), (e_fit.mean(), e_tpl.mean())
     assert result.history["total"][-1] < 0.1 * result.history["total"][0]
@@ -109,15 +91,15 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
 
 @pytest.mark.parametrize("mode", ["level1", "random"])
 def test_fit_with_other_sample_modes(mode):
-    P, N = noisy_sphere(seed=2)
+    P, N = sphere_points(3000, radius=SPHERE_R, noise=0.01, seed=2)
     V0, F0 = small_template()
     result = fit(P, N, template=(V0, F0), samples=mode, max_iterations=50, seed=3)
     expected = {"level1": len(tessellate(F0, 1)[0]), "random": 4 * len(F0)}[mode]
     assert result.params["samples"] == mode and result.params["n_samples"] == expected
     np.testing.assert_array_equal(result.F, F0)
     assert np.isfinite(result.V).all()
-    e_fit = sphere_error(limit_points(result.V, F0)[0])
-    e_tpl = sphere_error(limit_points(V0, F0)[0])
+    e_fit = sphere_error(limit_surface(result.V, F0)[0])
+    e_tpl = sphere_error(limit_surface(V0, F0)[0])
     assert e_fit.mean() < 0.1 * e_tpl.mean(), (e_fit.mean(), e_tpl.mean())
     assert result.history["total"][-1] < result.history["total"][0]
 
@@ -193,7 +175,7 @@ def test_sample_parameters_rejects_an_unknown_mode():
 @pytest.fixture(scope="module")
 def cloud():
     """500 exact points and normals on the sphere (no fitting happens in the error tests)."""
-    return noisy_sphere(500, noise=0.0, seed=4)
+    return sphere_points(500, radius=SPHERE_R, seed=4)
 
 
 @pytest.mark.parametrize("shape, message", [
@@ -240,12 +222,14 @@ def test_fit_rejects_a_non_manifold_template(cloud):
     # two tetrahedra sharing only vertex 0: a bow-tie vertex
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]], float)
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3], [0, 5, 4], [0, 4, 6], [0, 6, 5], [4, 5, 6]])
-    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(the faces around each vertex form one fan\), got non-manifold "
+    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(the faces around each vertex form one "
+                                         r"fan\), got non-manifold "
                                          r"vertex 0, whose faces form 2 separate fans"):
         fit(*cloud, template=(V, F))
     # a third face on edge (0, 1) of a tetrahedron
     F = np.vstack([F[:4], [[0, 1, 4]]])
-    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(at most two faces per edge\), got non-manifold edge \(0, 1\) "
+    with pytest.raises(ValueError, match=r"fit\(\): expected a manifold mesh \(at most two faces per edge\), got "
+                                         r"non-manifold edge \(0, 1\) "
                                          r"shared by 3 faces \(0, 1, 4\)"):
         fit(*cloud, template=(V[:5], F))
 
@@ -254,11 +238,13 @@ def test_fit_rejects_degenerate_templates(cloud):
     V, F = datasets.icosphere(1)
     F_rep = F.copy()
     F_rep[3] = [F[3, 0], F[3, 0], F[3, 1]]
-    with pytest.raises(ValueError, match=re.escape(f"fit(): expected faces with three distinct vertices, got face 3 = {F_rep[3].tolist()} (degenerate)")):
+    with pytest.raises(ValueError, match=re.escape(f"fit(): expected faces with three distinct vertices, got face 3 = "
+                                                   f"{F_rep[3].tolist()} (degenerate)")):
         fit(*cloud, template=(V, F_rep))
     V_flat = V.copy()
     V_flat[F[0, 2]] = (V[F[0, 0]] + V[F[0, 1]]) / 2             # face 0 collapses onto its edge
-    with pytest.raises(ValueError, match=re.escape(f"ARAP(): expected rest faces of non-zero area (cotangent weights), got face 0 = {F[0].tolist()} of zero area")):
+    with pytest.raises(ValueError, match=re.escape(f"ARAP(): expected rest faces of non-zero area (cotangent weights), "
+                                                   f"got face 0 = {F[0].tolist()} of zero area")):
         fit(*cloud, template=(V_flat, F))
     V_nan = V.copy()
     V_nan[7, 2] = np.nan
@@ -301,8 +287,8 @@ def test_fit_rejects_a_nan_alpha(cloud):
 
 def test_fit_reports_divergence_as_fit_error(cloud, monkeypatch):
     """An energy that turns non-finite (here: forced) is retried with smaller steps, then reported."""
-    import drjit as dr
     import mitsuba as mi
+
     from mi_loop.energies.imls import IMLS
 
     energy = IMLS.energy

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,18 +9,19 @@ import trimesh
 
 import mi_loop
 from mi_loop import datasets
-from mi_loop.io.points import load_oriented_points
 from mi_loop.fitting.slivers import angles, remove_slivers
 from mi_loop.fitting.template import make_template, mesh_template, poisson_depth
+from mi_loop.io.points import load_oriented_points
 
-from helpers import DATA
+from helpers import DATA, sphere_mesh, sphere_points
+
 BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
 
 
 @pytest.fixture(scope="module")
-def sphere_points():
-    P = np.random.default_rng(0).normal(size=(20000, 3))
-    return P / np.linalg.norm(P, axis=1, keepdims=True)
+def unit_sphere():
+    """20,000 random points on the unit sphere (also their own normals)."""
+    return sphere_points(20000)[0]
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +47,8 @@ def _check_closed_valid(V, F, genus=0, min_angle=10.0):
 
 
 @pytest.mark.parametrize("n", [100, 642])
-def test_sphere_template(sphere_points, n):
-    P = sphere_points
+def test_sphere_template(unit_sphere, n):
+    P = unit_sphere
     V, F, info = make_template(P, P * 3.0, n)
     assert abs(len(V) - n) <= 0.03 * n and info["vertices"] == len(V)
     _check_closed_valid(V, F)
@@ -60,8 +60,8 @@ def test_sphere_template(sphere_points, n):
         assert info[key] >= 0
 
 
-def test_orientation_follows_the_normals(sphere_points):
-    V, F, _ = make_template(sphere_points, -sphere_points, 200)
+def test_orientation_follows_the_normals(unit_sphere):
+    V, F, _ = make_template(unit_sphere, -unit_sphere, 200)
     volume = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6
     assert volume < 0                                     # inward normals, inward faces
     _check_closed_valid(V, F[:, ::-1])
@@ -83,7 +83,7 @@ def test_open_scan_keeps_its_boundary():
     assert np.mean(agree > 0) > 0.9
 
 
-@pytest.mark.parametrize("n", [314, 1000, 4667])
+@pytest.mark.parametrize("n", [314, 1000, pytest.param(4667, marks=pytest.mark.slow)])
 def test_bunny_scan_templates(bunny_scan, n):
     P, N = bunny_scan
     V, F, info = make_template(P, N, n)
@@ -97,15 +97,15 @@ def test_bunny_scan_templates(bunny_scan, n):
 
 
 def test_remove_slivers_fixes_needles_and_caps():
-    fine = trimesh.creation.icosphere(subdivisions=5)
-    m = trimesh.creation.icosphere(subdivisions=3)
-    V, F = np.array(m.vertices), np.array(m.faces)
+    fine_V, fine_F = sphere_mesh(1.0, 5, builder="trimesh")
+    V, F = sphere_mesh(1.0, 3, builder="trimesh")
+    V = V.copy()                                          # edited below
     for v in (0, 50, 200):                                # pull vertices onto a neighbour: needles
         w = F[np.flatnonzero((F == v).any(1))[0]]
         w = w[w != v][0]
         V[v] = V[w] + 0.02 * (V[v] - V[w])
     assert angles(V, F).min() < 2
-    V2, F2, stats = remove_slivers(V, F, np.asarray(fine.vertices), np.asarray(fine.faces), 10.0)
+    V2, F2, stats = remove_slivers(V, F, fine_V, fine_F, 10.0)
     _check_closed_valid(V2, F2)
     assert stats["min_angle"] >= 10 and stats["flips"] + stats["collapses"] > 0
     assert len(V2) >= len(V) - 3
@@ -116,8 +116,8 @@ def test_poisson_depth_rule():
     assert [poisson_depth(n) for n in (4, 2000, 2001, 8000, 8001)] == [6, 6, 7, 7, 8]
 
 
-def test_errors(sphere_points):
-    P = sphere_points
+def test_errors(unit_sphere):
+    P = unit_sphere
     with pytest.raises(ValueError, match="n_vertices must be an integer >= 4, got 3"):
         make_template(P, P, 3)
     with pytest.raises(ValueError, match="n_vertices must be an integer"):
@@ -212,6 +212,7 @@ def test_mesh_template_errors():
     with pytest.raises(ValueError, match="mesh_template\\(\\): min_angle must be in \\[0, 20\\] degrees, got 25"):
         mesh_template(V, F, 100, min_angle=25)
     bad = np.vstack([F, [[0, 1, 2]]])                   # one face twice: not a manifold
-    with pytest.raises(ValueError, match=r"^mesh_template\(\): expected a manifold mesh \(the faces around each vertex form one fan\), "
+    with pytest.raises(ValueError, match=r"^mesh_template\(\): expected a manifold mesh \(the faces around each vertex "
+                                         r"form one fan\), "
                                          r"got non-manifold vertex 0, whose faces form 2 separate fans"):
         mesh_template(V, bad, 100)

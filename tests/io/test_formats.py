@@ -20,7 +20,8 @@ from mi_loop.io.formats import fan_triangulate
 from mi_loop.io.ply import read_ply
 from mi_loop.mesh.geometry import euler_characteristic
 
-from helpers import DATA
+from helpers import DATA, value_error
+from meshes import TET_F, TET_V
 
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0.5], [2, 1, 0.5]], float)
 #: A quad, a triangle and a pentagon sharing edges, as the file lists them.
@@ -29,15 +30,8 @@ POLYGONS = [[0, 1, 2, 3], [1, 4, 2], [4, 5, 2, 3, 1][::-1]]
 FANS = [[0, 1, 2], [0, 2, 3], [1, 4, 2], [1, 3, 2], [1, 2, 5], [1, 5, 4]]
 
 
-def error(call, *args) -> str:
-    with pytest.raises(ValueError) as info:
-        call(*args)
-    message = str(info.value)
-    assert "\n" not in message
-    return message
-
-
-def write_ply(path, V, polygons, fmt="ascii", face_extra=False, vertex_extra=False, double=False, name="vertex_indices"):
+def write_ply(path, V, polygons, fmt="ascii", face_extra=False, vertex_extra=False, double=False,
+              name="vertex_indices"):
     """A PLY file written independently of mi_loop.io (lists of any length, optional extra properties)."""
     vt = "double" if double else "float"
     head = ["ply", f"format {fmt} 1.0", "comment test", f"element vertex {len(V)}",
@@ -167,28 +161,29 @@ def test_validate_mesh_still_refuses_polygons():
 def test_nan_written_as_text(tmp_path):
     """The issue's case: 'v nan 0 0' names the vertex; so do PLY and OFF; an unparsable token names the line."""
     (tmp_path / "n.obj").write_text("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    assert error(io.read_mesh, tmp_path / "n.obj") == (
+    assert value_error(io.read_mesh, tmp_path / "n.obj") == (
         f"read_mesh(): expected finite vertex coordinates in '{tmp_path / 'n.obj'}', "
         "got vertex 0 = [nan, 0.0, 0.0] (1 such vertices)")
     (tmp_path / "n.off").write_text("OFF\n3 1 0\n0 0 0\n1 -inf 0\n0 1 0\n3 0 1 2\n")
-    assert error(io.read_mesh, tmp_path / "n.off") == (
+    assert value_error(io.read_mesh, tmp_path / "n.off") == (
         f"read_mesh(): expected finite vertex coordinates in '{tmp_path / 'n.off'}', "
         "got vertex 1 = [1.0, -inf, 0.0] (1 such vertices)")
     V = SQUARE.copy()
     V[4, 2] = np.nan
     write_ply(tmp_path / "n.ply", V, POLYGONS, "binary_little_endian")
-    assert error(io.read_control_mesh, tmp_path / "n.ply") == (
+    assert value_error(io.read_control_mesh, tmp_path / "n.ply") == (
         f"read_control_mesh(): expected finite vertex coordinates in '{tmp_path / 'n.ply'}', "
         "got vertex 4 = [2.0, 0.0, nan] (1 such vertices)")
     (tmp_path / "q.obj").write_text("v 0 0 0\nv 1.#QNAN 0 0\nv 0 1 0\nf 1 2 3\n")
-    assert error(io.read_mesh, tmp_path / "q.obj") == (
+    assert value_error(io.read_mesh, tmp_path / "q.obj") == (
         f"read_mesh(): expected vertex lines 'v x y z' with three numbers in '{tmp_path / 'q.obj'}', "
         "got line 2 = 'v 1.#QNAN 0 0'")
 
 
 @pytest.mark.parametrize("name, text, message", [
     ("short.obj", "v 0 0\n", "expected vertex lines 'v x y z' with three numbers in '{p}', got line 1 = 'v 0 0'"),
-    ("two.obj", "v 0 0 0\nv 1 0 0\n# x\nf 1 2\n", "expected faces with at least 3 corners in '{p}', got line 4 = 'f 1 2'"),
+    ("two.obj", "v 0 0 0\nv 1 0 0\n# x\nf 1 2\n", "expected faces with at least 3 corners in '{p}', got line 4 = 'f 1 "
+                                                  "2'"),
     ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n",
      "expected face corners that index the file's 3 vertices in '{p}', got line 4 = 'f 0 1 2'"),
     ("far.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n",
@@ -209,11 +204,14 @@ def test_nan_written_as_text(tmp_path):
      "expected face corners that index the file's 3 vertices in '{p}', got line 6 = '3 0 1 3'"),
     ("count.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n",
      "expected face lines 'k i_1 ... i_k' in '{p}', got line 6 = '4 0 1 2'"),
-    ("word.off", "OFF\n3 1 0\n0 0 0\n1 x 0\n0 1 0\n3 0 1 2\n", "expected vertex lines 'x y z' in '{p}', got line 4 = '1 x 0'"),
+    ("word.off", "OFF\n3 1 0\n0 0 0\n1 x 0\n0 1 0\n3 0 1 2\n", "expected vertex lines 'x y z' in '{p}', got line 4 = "
+                                                               "'1 x 0'"),
     ("hdr.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty floaty x\nend_header\n",
      "expected a valid PLY header in '{p}', got header line 4 = 'property floaty x'"),
-    ("fmt.ply", "ply\nformat utf8 1.0\nend_header\n", "expected a valid PLY header in '{p}', got header line 2 = 'format utf8 1.0'"),
-    ("noformat.ply", "ply\nelement vertex 0\nend_header\n", "expected a 'format' line in the PLY header of '{p}', got none"),
+    ("fmt.ply", "ply\nformat utf8 1.0\nend_header\n", "expected a valid PLY header in '{p}', got header line 2 = "
+                                                      "'format utf8 1.0'"),
+    ("noformat.ply", "ply\nelement vertex 0\nend_header\n", "expected a 'format' line in the PLY header of '{p}', got "
+                                                            "none"),
     ("rows.ply", ("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
                   "end_header\n0 0 0\n1 1\n"), "expected 3 numbers per 'vertex' line in '{p}', got line 9 = '1 1'"),
     ("few.ply", ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
@@ -223,9 +221,11 @@ def test_nan_written_as_text(tmp_path):
      "expected 'face' lines as the header declares them in '{p}', got line 13 = '4 0 1 2'"),
     ("range.ply", ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
                    "element face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
-                   "3 0 1 2\n3 0 2 3\n"), "expected face corners that index the file's 3 vertices in '{p}', got face 1 = [0, 2, 3]"),
+                   "3 0 1 2\n3 0 2 3\n"), "expected face corners that index the file's 3 vertices in '{p}', got face 1 "
+                                          "= [0, 2, 3]"),
     ("xyz.ply", "ply\nformat ascii 1.0\nelement point 1\nproperty float x\nend_header\n0\n",
-     "expected a PLY 'vertex' element with properties x, y, z in '{p}', got elements ['point'] with vertex properties []"),
+     "expected a PLY 'vertex' element with properties x, y, z in '{p}', got elements ['point'] with vertex properties "
+     "[]"),
     ("lists.ply", ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
                    "element face 1\nproperty int nope\nend_header\n0 0 0\n1 0 0\n0 1 0\n5\n"),
      "expected a PLY 'face' element with a list property vertex_indices in '{p}', got face properties ['nope']"),
@@ -233,18 +233,18 @@ def test_nan_written_as_text(tmp_path):
 def test_malformed_files_named(tmp_path, name, text, message):
     path = tmp_path / name
     path.write_text(text)
-    assert error(io.read_mesh, path) == "read_mesh(): " + message.format(p=path)
+    assert value_error(io.read_mesh, path) == "read_mesh(): " + message.format(p=path)
 
 
 def test_binary_ply_that_ends_early(tmp_path):
     write_ply(tmp_path / "m.ply", SQUARE, POLYGONS, "binary_little_endian")
     data = (tmp_path / "m.ply").read_bytes()
     (tmp_path / "v.ply").write_bytes(data[:data.index(b"end_header") + 11 + 40])
-    assert error(io.read_mesh, tmp_path / "v.ply") == (
+    assert value_error(io.read_mesh, tmp_path / "v.ply") == (
         f"read_mesh(): expected 6 'vertex' records (72 bytes) in '{tmp_path / 'v.ply'}', got 40 bytes left "
         "(the file ends early)")
     (tmp_path / "f.ply").write_bytes(data[:-3])
-    assert error(io.read_mesh, tmp_path / "f.ply") == (
+    assert value_error(io.read_mesh, tmp_path / "f.ply") == (
         f"read_mesh(): expected 3 'face' records in '{tmp_path / 'f.ply'}', got fewer bytes (the file ends early)")
 
 
@@ -252,17 +252,14 @@ def test_binary_ply_that_ends_early(tmp_path):
 # glTF / GLB
 # --------------------------------------------------------------------------
 
-TET_V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float32)
-TET_F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
-
-
 def write_gltf(path, meshes, nodes):
     """A .gltf file with an embedded buffer: ``meshes`` = [[(V, F), ...primitives], ...], ``nodes`` = [dict]."""
     blob, views, accessors, out_meshes = b"", [], [], []
     for primitives in meshes:
         prims = []
         for V, F in primitives:
-            for array, kind, ctype in ((np.asarray(V, np.float32), "VEC3", 5126), (np.asarray(F, np.uint32).ravel(), "SCALAR", 5125)):
+            for array, kind, ctype in ((np.asarray(V, np.float32), "VEC3", 5126),
+                                       (np.asarray(F, np.uint32).ravel(), "SCALAR", 5125)):
                 views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": array.nbytes})
                 acc = {"bufferView": len(views) - 1, "componentType": ctype, "count": len(array), "type": kind}
                 if kind == "VEC3":
@@ -290,7 +287,8 @@ def test_gltf_primitives_are_merged_and_welded(tmp_path):
 
 
 def test_gltf_node_transform_applied(tmp_path):
-    write_gltf(tmp_path / "t.gltf", [[(TET_V, TET_F)]], [{"mesh": 0, "translation": [10.0, 0, 0], "scale": [2.0, 2, 2]}])
+    write_gltf(tmp_path / "t.gltf", [[(TET_V, TET_F)]],
+               [{"mesh": 0, "translation": [10.0, 0, 0], "scale": [2.0, 2, 2]}])
     V, F = io.read_mesh(tmp_path / "t.gltf")
     np.testing.assert_allclose(V, 2.0 * TET_V + [10, 0, 0], rtol=0, atol=1e-6)
     np.testing.assert_array_equal(F, TET_F)
@@ -300,7 +298,7 @@ def test_gltf_with_several_meshes(tmp_path):
     """A control mesh must be one object; the fitting target may be several (all sampled, each in place)."""
     write_gltf(tmp_path / "two.gltf", [[(TET_V, TET_F)], [(TET_V, TET_F)]],
                [{"mesh": 0, "name": "left"}, {"mesh": 1, "name": "right", "translation": [5.0, 0, 0]}])
-    assert error(io.read_mesh, tmp_path / "two.gltf") == (
+    assert value_error(io.read_mesh, tmp_path / "two.gltf") == (
         f"read_mesh(): expected one mesh in '{tmp_path / 'two.gltf'}', got 2 meshes (nodes 'left', 'right'); "
         "export the one to use alone")
     P, _, info = io.load_oriented_points(tmp_path / "two.gltf", n_samples=2000)
@@ -310,10 +308,10 @@ def test_gltf_with_several_meshes(tmp_path):
 
 def test_gltf_errors(tmp_path):
     (tmp_path / "bad.glb").write_bytes(b"glTF not really")
-    assert error(io.read_mesh, tmp_path / "bad.glb").startswith(
+    assert value_error(io.read_mesh, tmp_path / "bad.glb").startswith(
         f"read_mesh(): expected a readable glTF file '{tmp_path / 'bad.glb'}', got ")
     write_gltf(tmp_path / "n.gltf", [[(np.where(TET_V == -1, np.nan, TET_V), TET_F)]], [{"mesh": 0}])
-    assert error(io.read_mesh, tmp_path / "n.gltf").startswith(
+    assert value_error(io.read_mesh, tmp_path / "n.gltf").startswith(
         f"read_mesh(): expected finite vertex coordinates in '{tmp_path / 'n.gltf'}', got vertex 1 = [1.0, nan, nan]")
 
 

@@ -2,19 +2,15 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from mi_loop import datasets, io
 
-from helpers import DATA
+from helpers import DATA, value_error
 
 
 def error(inputs) -> str:
-    with pytest.raises(ValueError) as info:
-        io.read_frames(inputs)
-    message = str(info.value)
-    assert message.startswith("read_frames(): expected ") and "\n" not in message
-    return message[len("read_frames(): "):]
+    """The one-line message of ``read_frames(inputs)``, after ``read_frames(): ``."""
+    return value_error(io.read_frames, inputs, function="read_frames")
 
 
 def test_npz_sequence(tmp_path):
@@ -97,8 +93,10 @@ def test_mixed_frame_kinds(tmp_path):
 
 
 def test_missing_inputs_named(tmp_path):
-    assert error([tmp_path / "nope"]) == f"expected an existing file, directory or glob pattern, got '{tmp_path / 'nope'}': no such file or directory"
-    assert error([str(tmp_path / "f_*.ply")]) == f"expected frame files matching the pattern, got none for '{tmp_path / 'f_*.ply'}'"
+    assert error([tmp_path / "nope"]) == ("expected an existing file, directory or glob pattern, "
+                                          f"got '{tmp_path / 'nope'}': no such file or directory")
+    assert error([str(tmp_path / "f_*.ply")]) == ("expected frame files matching the pattern, "
+                                                  f"got none for '{tmp_path / 'f_*.ply'}'")
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "readme.txt").write_text("frames go here")
     assert error([tmp_path / "empty"]) == f"expected at least one frame file, got none in ['{tmp_path / 'empty'}']"

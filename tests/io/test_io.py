@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import os
-import re
 
 import numpy as np
 import pytest
@@ -10,9 +9,7 @@ from matplotlib import image as mpl_image
 
 from mi_loop import datasets, io
 
-
-def exactly(message: str) -> str:
-    return "^" + re.escape(message) + "$"
+from helpers import exactly
 
 
 @pytest.fixture
@@ -91,7 +88,8 @@ def test_overwrite_leaves_no_temporaries_and_keeps_permissions(tmp_path, blob):
 
 @pytest.mark.parametrize("name, content, message", [
     ("missing.ply", None, "expected an existing file, got '{path}': no such file"),
-    ("mesh.stl", b"solid x\nendsolid x\n", "expected a .ply, .obj, .off, .glb, .gltf file, got '{path}' (suffix '.stl')"),
+    ("mesh.stl", b"solid x\nendsolid x\n",
+     "expected a .ply, .obj, .off, .glb, .gltf file, got '{path}' (suffix '.stl')"),
     ("empty.ply", b"", "expected a PLY file (a header from 'ply' to 'end_header') in '{path}', got an empty file"),
     ("garbage.ply", b"this is not a ply file\n",
      "expected a PLY file (a header from 'ply' to 'end_header') in '{path}', got a file starting b'this is not a pl'"),
@@ -111,9 +109,11 @@ def test_read_mesh_errors(tmp_path, name, content, message):
 
 def test_write_ply_rejects_bad_arrays(tmp_path):
     V = np.zeros((3, 3))
-    with pytest.raises(ValueError, match=exactly("write_ply(): expected face indices in [0, 3), got face 1 = [0, 1, 3]")):
+    with pytest.raises(ValueError, match=exactly("write_ply(): expected face indices in [0, 3), "
+                                                 "got face 1 = [0, 1, 3]")):
         io.write_ply(tmp_path / "x.ply", V, np.array([[0, 1, 2], [0, 1, 3]]))
-    with pytest.raises(ValueError, match=exactly("write_ply(): expected V of shape (n, 3) with n > 0, got shape (3, 2)")):
+    with pytest.raises(ValueError, match=exactly("write_ply(): expected V of shape (n, 3) with n > 0, "
+                                                 "got shape (3, 2)")):
         io.write_ply(tmp_path / "x.ply", np.zeros((3, 2)), np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match=exactly("write_ply(): expected integer F of shape (m, 3), "
                                                  "got float64 array of shape (1, 3)")):

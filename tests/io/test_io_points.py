@@ -1,20 +1,17 @@
-"""Reading oriented points (mi_loop.io.points): formats, mesh sampling, errors, normal estimation."""
+"""Reading oriented points (mi_loop.io.points): formats, mesh sampling, errors.
+
+Normal estimation (mi_loop.mesh.points) is tested in tests/mesh/test_points.py.
+"""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from mi_loop.io.points import load_oriented_points
-from mi_loop.mesh.points import estimate_normals
 
-from helpers import DATA, REPO
+from helpers import DATA, sphere_points, value_error
 
 BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
-
-
-def _sphere(n, seed=0):
-    P = np.random.default_rng(seed).normal(size=(n, 3))
-    return P / np.linalg.norm(P, axis=1, keepdims=True)
 
 
 def _write_ply_points(path, P, N=None, binary=False):
@@ -51,7 +48,7 @@ def _check_cube_samples(P, N):
 
 @pytest.mark.parametrize("binary", [False, True])
 def test_ply_points_with_and_without_normals(tmp_path, binary):
-    P = _sphere(200)
+    P = sphere_points(200)[0]
     _write_ply_points(tmp_path / "n.ply", P, 2 * P, binary)   # normals get unit length
     Q, N, info = load_oriented_points(tmp_path / "n.ply")
     np.testing.assert_allclose(Q, P, atol=1e-6)
@@ -63,7 +60,7 @@ def test_ply_points_with_and_without_normals(tmp_path, binary):
 
 
 def test_text_formats_with_comments_and_headers(tmp_path):
-    P = _sphere(50)
+    P = sphere_points(50)[0]
     rows6 = "\n".join(" ".join(f"{x:.12g}" for x in r) for r in np.hstack([P, P]))
     rows3 = "\n".join(",".join(f"{x:.12g}" for x in r) for r in P)
     (tmp_path / "a.xyz").write_text("# comment\n// another\nx y z nx ny nz\n" + rows6 + "\n\n")
@@ -79,7 +76,7 @@ def test_text_formats_with_comments_and_headers(tmp_path):
 
 
 def test_npz_and_point_subset(tmp_path):
-    P = _sphere(300)
+    P = sphere_points(300)[0]
     np.savez(tmp_path / "a.npz", points=P, normals=-P)
     Q, N, info = load_oriented_points(tmp_path / "a.npz")
     np.testing.assert_allclose(N, -P)
@@ -122,11 +119,8 @@ def test_real_bunny_scan():
 
 
 def _error(path, **kwargs) -> str:
-    with pytest.raises(ValueError) as info:
-        load_oriented_points(path, **kwargs)
-    message = str(info.value)
-    assert message.startswith("load_oriented_points(): expected ") and "\n" not in message
-    return message[len("load_oriented_points(): "):]
+    """The one-line message of ``load_oriented_points(path, **kwargs)``, after ``load_oriented_points(): ``."""
+    return value_error(load_oriented_points, path, function="load_oriented_points", **kwargs)
 
 
 def test_errors(tmp_path):
@@ -152,8 +146,9 @@ def test_errors(tmp_path):
     assert _error(t / "word.xyz") == (f"expected 3 numbers on every line of '{t / 'word.xyz'}' (as on its first "
                                       "data line), got line 2 = '5 six 7'")
     (t / "nan.xyz").write_text("0 0 0\n1 nan 0\n")
-    assert _error(t / "nan.xyz") == f"expected finite points in '{t / 'nan.xyz'}', got point 1 = [1.0, nan, 0.0] (1 such points)"
-    P = _sphere(10)
+    assert _error(t / "nan.xyz") == (f"expected finite points in '{t / 'nan.xyz'}', "
+                                     "got point 1 = [1.0, nan, 0.0] (1 such points)")
+    P = sphere_points(10)[0]
     N = P.copy()
     N[7] = 0
     N[8] = np.nan
@@ -179,15 +174,15 @@ def test_mesh_errors_name_the_file_and_element(tmp_path):
     flat = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n" \
            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"
     (tmp_path / "flat.ply").write_text(flat)
-    assert _error(tmp_path / "flat.ply") == (f"expected a mesh with a positive surface area in '{tmp_path / 'flat.ply'}', "
-                                             "got zero area")
+    assert _error(tmp_path / "flat.ply") == ("expected a mesh with a positive surface area in "
+                                             f"'{tmp_path / 'flat.ply'}', got zero area")
     (tmp_path / "nanmesh.ply").write_text(flat.replace("2 0 0", "2 inf 0"))
     assert _error(tmp_path / "nanmesh.ply") == (f"expected finite vertex coordinates in '{tmp_path / 'nanmesh.ply'}', "
                                                 "got vertex 2 = [2.0, inf, 0.0] (1 such vertices)")
 
 
 def test_obj_without_faces_is_a_point_cloud(tmp_path):
-    P = _sphere(30)
+    P = sphere_points(30)[0]
     (tmp_path / "p.obj").write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in P.tolist()))
     Q, N, info = load_oriented_points(tmp_path / "p.obj")
     np.testing.assert_array_equal(Q, P)
@@ -200,54 +195,3 @@ def test_ply_with_partial_normals_is_rejected(tmp_path):
     (tmp_path / "p.ply").write_text(head)
     assert _error(tmp_path / "p.ply") == (f"expected PLY vertex normals nx, ny, nz all three or none in "
                                           f"'{tmp_path / 'p.ply'}', got only ['nx']")
-
-
-@pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (3.0, -2.0, 1.0)])
-def test_estimate_normals_on_sphere(centre):
-    U = _sphere(4000, seed=1)
-    P = U * 0.5 + centre
-    N = estimate_normals(P, k=16)
-    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-12)
-    dots = np.sum(N * U, 1)
-    assert np.mean(np.abs(dots) > 0.99) > 0.99
-    assert np.mean(dots > 0.99) > 0.99          # oriented outward, consistently
-
-
-def test_estimate_normals_two_components_each_outward():
-    U = _sphere(3000, seed=2)
-    P = np.vstack([U, U + [5.0, 0, 0]])
-    N = estimate_normals(P)
-    assert np.mean(np.sum(N * np.vstack([U, U]), 1) > 0.99) > 0.99
-
-
-def test_estimate_normals_errors():
-    P = _sphere(100)
-    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected an integer k in \[3, 200\], got 2"):
-        estimate_normals(P, k=2)
-    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected at least k \+ 1 = 17 points, got 10"):
-        estimate_normals(P[:10])
-    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected points of shape \(k, 3\) with k > 0, got shape \(100, 2\)"):
-        estimate_normals(P[:, :2])
-    Q = P.copy()
-    Q[5, 2] = np.inf
-    with pytest.raises(ValueError, match=r"estimate_normals\(\): expected finite points, got row 5 = \[.*inf\]"):
-        estimate_normals(Q)
-
-
-def test_estimate_normals_is_deterministic():
-    """Same points, same normals, bit for bit: twice in this process and once more with one thread."""
-    import hashlib
-    import subprocess
-    import sys
-
-    P = np.load(DATA / "sequences" / "fox_walk_24f.npz")["vertices"][0].astype(np.float64)
-    P = np.vstack([P, P[:40] + 1e-3, P[:10]])            # near and exact duplicates: ties in the kNN
-    first, second = estimate_normals(P), estimate_normals(P.copy())
-    assert first.tobytes() == second.tobytes()
-    code = ("import sys, hashlib, numpy as np\nfrom mi_loop.mesh.points import estimate_normals\n"
-            "P = np.frombuffer(sys.stdin.buffer.read()).reshape(-1, 3)\n"
-            "print(hashlib.sha256(estimate_normals(P).tobytes()).hexdigest())\n")
-    env = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"}
-    out = subprocess.run([sys.executable, "-c", code], input=P.tobytes(), capture_output=True, env=env, cwd=REPO,
-                         check=True, timeout=120)
-    assert out.stdout.decode().strip() == hashlib.sha256(first.tobytes()).hexdigest()

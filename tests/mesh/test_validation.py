@@ -1,21 +1,13 @@
-"""Every input rejected at the public boundary, with the message checked."""
+"""Mesh validation (mi_loop.mesh.topology): every mesh and crease input rejected, with the message checked."""
 from __future__ import annotations
-
-import re
 
 import numpy as np
 import pytest
 
 import mi_loop
 
-TET_V = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
-TET_F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
-
-
-def exactly(message: str) -> str:
-    """A ``match`` pattern for exactly this message (one line, nothing before or after)."""
-    return "^" + re.escape(message) + "$"
-
+from helpers import exactly
+from meshes import TET_F, TET_V
 
 NAN_V = np.where(np.arange(12).reshape(4, 3) == 5, np.nan, TET_V)
 INF_V = np.where(np.arange(12).reshape(4, 3) == 0, np.inf, TET_V)
@@ -128,103 +120,18 @@ def test_open_mesh_accepted():
     (np.array([[0, 1, 2]]), "expected creases as an integer array of shape (c, 2), got int64 array of shape (1, 3)"),
     (np.array([[0.0, 1.0]]), "expected creases as an integer array of shape (c, 2), got float64 array of shape (1, 2)"),
     ((np.array([[0, 1]]), np.array([1.0, 2.0])), "expected one sharpness per crease edge (1), got 2 sharpness values"),
-    ((np.array([[0, 1]]), np.array([0.0])), "expected crease sharpness a positive integer or inf, got sharpness 0.0 at crease 0"),
+    ((np.array([[0, 1]]), np.array([0.0])), "expected crease sharpness a positive integer or inf, got sharpness 0.0 at "
+                                            "crease 0"),
     ((np.array([[0, 1], [1, 2]]), np.array([1.0, 1.5])),
      "expected crease sharpness a positive integer or inf, got sharpness 1.5 at crease 1"),
-    ((np.array([[0, 1]]), np.array([np.nan])), "expected crease sharpness a positive integer or inf, got sharpness nan at crease 0"),
+    ((np.array([[0, 1]]), np.array([np.nan])), "expected crease sharpness a positive integer or inf, got sharpness nan "
+                                               "at crease 0"),
     ((np.array([[0, 1]]), np.array([7.0])),
      "expected finite crease sharpness at most 4 (use inf for sharper), got sharpness 7 at crease 0"),
     (np.array([[0, 9]]), "expected creases as pairs of distinct vertex indices in [0, 4), got crease 0 = [0, 9]"),
-    (np.array([[0, 1], [1, 1]]), "expected creases as pairs of distinct vertex indices in [0, 4), got crease 1 = [1, 1]"),
+    (np.array([[0, 1], [1, 1]]),
+     "expected creases as pairs of distinct vertex indices in [0, 4), got crease 1 = [1, 1]"),
 ])
 def test_creases_rejected(creases, message):
     with pytest.raises(ValueError, match=exactly("subdivision_matrix(): " + message)):
         mi_loop.subdivision_matrix(TET_F, 4, creases)
-
-
-def test_crease_not_an_edge():
-    F = np.array([[0, 1, 2], [0, 2, 3]])
-    with pytest.raises(ValueError, match=exactly(
-            "limit_matrix(): expected crease edges that are edges of the mesh, got crease 0 = [1, 3]")):
-        mi_loop.limit_matrix(F, 4, np.array([0]), np.array([[0.1, 0.1]]), creases=np.array([[1, 3]]))
-
-
-@pytest.mark.parametrize("face_ids, uv, message", [
-    (np.array([4]), np.array([[0.1, 0.1]]), "expected face ids in [0, 4), got face id 4 at sample 0"),
-    (np.array([0, -1]), np.array([[0.1, 0.1]] * 2), "expected face ids in [0, 4), got face id -1 at sample 1"),
-    (np.array([0]), np.array([[0.7, 0.7]]), "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [0.7, 0.7] at sample 0"),
-    (np.array([0, 0]), np.array([[0.1, 0.1], [-0.1, 0.2]]),
-     "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [-0.1, 0.2] at sample 1"),
-    (np.array([0]), np.array([[np.nan, 0.2]]), "expected uv with u >= 0, v >= 0, u + v <= 1, got uv = [nan, 0.2] at sample 0"),
-    (np.array([0]), np.array([[0.1, 0.1, 0.1]]), "expected uv of shape (1, 2) (one row per face id), got shape (1, 3)"),
-    (np.array([0.0]), np.array([[0.1, 0.1]]), "expected face_ids as a 1-D integer array, got float64 array of shape (1,)"),
-])
-def test_samples_rejected(face_ids, uv, message):
-    with pytest.raises(ValueError, match=exactly("limit_matrix(): " + message)):
-        mi_loop.limit_matrix(TET_F, 4, face_ids, uv)
-
-
-def test_derivative_name_rejected():
-    with pytest.raises(ValueError, match=exactly("limit_matrix(): expected derivative None, 'u' or 'v', got 'w'")):
-        mi_loop.limit_matrix(TET_F, 4, np.array([0]), np.array([[0.1, 0.1]]), derivative="w")
-
-
-def test_box_basis_derivative_rejected():
-    from mi_loop.subdiv.boxspline import box_basis
-
-    with pytest.raises(ValueError, match=exactly("box_basis(): expected derivative None, 'u' or 'v', got 'uv'")):
-        box_basis(np.zeros((1, 2)), "uv")
-
-
-@pytest.mark.parametrize("level", [-1, 9, 2.5, True])
-def test_tessellate_level_rejected(level):
-    with pytest.raises(ValueError, match=exactly(f"tessellate(): expected an integer level in [0, 8], got {level!r}")):
-        mi_loop.tessellate(TET_F, level)
-
-
-def test_vertex_functions_reject_unused_vertices():
-    V = np.concatenate([TET_V, [[5.0, 5, 5]]])
-    what = "expected every control vertex used by a face (mi_loop.validate_mesh drops the others), " \
-           "got 1 unused vertices, the first vertex 4"
-    with pytest.raises(ValueError, match=exactly("limit_positions(): " + what)):
-        mi_loop.limit_positions(V, TET_F)
-    with pytest.raises(ValueError, match=exactly("limit_normals(): " + what)):
-        mi_loop.limit_normals(V, TET_F)
-    with pytest.raises(ValueError, match=exactly("limit_masks(): " + what)):
-        mi_loop.limit_masks(TET_F, 5)
-    from mi_loop.subdiv.masks import tangent_masks
-
-    with pytest.raises(ValueError, match=exactly("tangent_masks(): " + what)):
-        tangent_masks(TET_F, 5)
-
-
-def test_vertex_functions_reject_bad_control_points():
-    from mi_loop.subdiv.masks import limit_mesh
-
-    with pytest.raises(ValueError, match=exactly("limit_positions(): expected control points V of shape (n, 3) with n > 0, "
-                                                 "got shape (4, 2)")):
-        mi_loop.limit_positions(TET_V[:, :2], TET_F)
-    with pytest.raises(ValueError, match=exactly("limit_normals(): expected finite vertex coordinates, "
-                                                 "got vertex 1 = [1.0, -1.0, nan] (1 such vertices)")):
-        mi_loop.limit_normals(NAN_V, TET_F)
-    with pytest.raises(ValueError, match=exactly("limit_mesh(): expected control points V of shape (n, 3), got shape (12,)")):
-        limit_mesh(TET_V.ravel(), TET_F)
-
-
-def test_operator_rejects_wrong_control_points():
-    """Control points of the wrong count, shape or type (the operator's checks live in mi_loop.ad.control)."""
-    import mitsuba as mi
-    op = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]))
-    count = exactly("LimitOperator(): expected 12 control coordinates (4 points, xyz interleaved), got 9")
-    with pytest.raises(ValueError, match=count):
-        op.positions(mi.Float(np.zeros(9)))
-    with pytest.raises(ValueError, match=count):
-        op.positions(mi.TensorXf(np.zeros((3, 3))))
-    with pytest.raises(ValueError, match=exactly("LimitOperator(): expected a (n, 3) tensor of control points, "
-                                                 "got shape (4, 2)")):
-        op.positions(mi.TensorXf(np.zeros((4, 2))))
-    with pytest.raises(TypeError, match=r"^LimitOperator\(\): expected control points as mi\.Float .*, got list$"):
-        op.positions([1.0, 2.0])
-    op_p = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]), derivatives=False)
-    with pytest.raises(ValueError, match="built with derivatives=False"):
-        op_p.evaluate(mi.Float(TET_V.ravel()))

@@ -11,6 +11,8 @@ from mi_loop import datasets, io, plugin
 from mi_loop.render import scene as render
 from mi_loop.subdiv.limit import limit_matrix
 
+from helpers import flat
+
 LEVEL = 2
 
 
@@ -38,7 +40,7 @@ def operator_arrays(V, F, level, x=None, creases=None):
     """Positions and normals from a LimitOperator built independently of the plugin."""
     face_ids, uv, _ = mi_loop.tessellate(F, level)
     op = mi_loop.LimitOperator(F, len(V), face_ids, uv, creases=creases)
-    x = mi.Float(np.asarray(V, dtype=np.float32).ravel()) if x is None else x
+    x = flat(V) if x is None else x
     return (np.asarray(dr.ravel(op.positions(x))).reshape(-1, 3),
             np.asarray(dr.ravel(op.normals(x))).reshape(-1, 3))
 
@@ -129,7 +131,7 @@ def test_update_moves_geometry_as_predicted(blob):
     np.testing.assert_allclose(np.array(shape.bbox().min), P1.min(axis=0), atol=1e-6)
 
     delta = np.random.default_rng(0).normal(scale=0.05, size=V.shape)
-    x_new = mi.Float((V + delta).astype(np.float32).ravel())
+    x_new = flat(V + delta)
     params["control_points"] = x_new
     params.update()
     P2, N2, _ = plugin.mesh_arrays(shape)
@@ -164,12 +166,6 @@ def test_parse_creases():
     assert plugin.parse_crease_text("") is None
     with pytest.raises(ValueError, match="creases entry 0 is '0 x'"):
         plugin.parse_crease_text("0 x")
-
-
-def test_set_variant_rejects_non_ad_variant():
-    with pytest.raises(ValueError, match=r"set_variant\(\): expected one of .*llvm_ad_rgb.*got 'scalar_rgb'"):
-        mi_loop.set_variant("scalar_rgb")
-    assert mi.variant() == "llvm_ad_rgb"
 
 
 def test_render_gradient_matches_finite_differences(blob, jit_variant):
@@ -210,17 +206,3 @@ def test_render_gradient_matches_finite_differences(blob, jit_variant):
         ad = gradient @ d
         assert abs(fd) > 1e-3                     # the direction does change the image
         np.testing.assert_allclose(ad, fd, rtol=0.1)
-
-
-def test_set_variant_without_a_gpu_refuses_cuda_with_one_line():
-    from mi_loop.render.variant import cuda_available
-
-    if cuda_available():          # on a GPU machine the CUDA variants run (see jit_variant); nothing to refuse
-        mi_loop.set_variant("cuda_ad_rgb")
-        assert mi.variant() == "cuda_ad_rgb"
-        mi_loop.set_variant("llvm_ad_rgb")
-        return
-    with pytest.raises(RuntimeError, match=r"set_variant\(\): expected a CUDA device for 'cuda_ad_rgb', got none "
-                                           r"\(Dr.Jit found no CUDA driver or GPU\); use an llvm_ad_\* variant"):
-        mi_loop.set_variant("cuda_ad_rgb")
-    assert mi.variant() == "llvm_ad_rgb"

@@ -17,20 +17,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import mi_loop
+
 import meshes
 import oracle_loop as oracle
+from helpers import bbox_diagonal
 
 MESH_NAMES = list(meshes.MESHES)
 N_LEVELS = 4  # all finite sharpness in the test meshes is <= 4
-
-
-@pytest.fixture(scope="module")
-def mi_loop():
-    return pytest.importorskip("mi_loop")
-
-
-def bbox_diagonal(V) -> float:
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
 @functools.cache
@@ -68,6 +62,7 @@ def interior_samples(F, per_face: int, seed: int, margin: float = 0.1):
 # The oracle itself
 # --------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_oracle_masks_are_limit_eigenvectors():
     """Closed-form smooth/crease/corner masks = left eigenvector of the one-ring matrix."""
     for name in MESH_NAMES:
@@ -125,7 +120,7 @@ def test_oracle_dart_mask_differs_from_smooth_mask():
 # --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_limit_points_match_iterated_subdivision(mi_loop, name):
+def test_limit_points_match_iterated_subdivision(name):
     """Every dyadic point (i/16, j/16) of every control face (all faces sharing it)."""
     mesh = meshes.MESHES[name]
     W_ref, face_ids, uv, vertex = dart_free(name)
@@ -141,7 +136,7 @@ def test_limit_points_match_iterated_subdivision(mi_loop, name):
 
 
 @pytest.mark.parametrize("name", ["ico_dart", "grid_dart", "mixed_sharpness"])
-def test_dart_vertex_limit(mi_loop, name):
+def test_dart_vertex_limit(name):
     """At a dart vertex the exact limit is the eigenvector mask of the rules (see oracle docs)."""
     mesh = meshes.MESHES[name]
     h, W_ref, face_ids, uv, vertex = reference(name)
@@ -155,7 +150,7 @@ def test_dart_vertex_limit(mi_loop, name):
 
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_row_sums(mi_loop, name):
+def test_row_sums(name):
     mesh = meshes.MESHES[name]
     _, face_ids, uv, _ = dart_free(name)
     for derivative, total in ((None, 1.0), ("u", 0.0), ("v", 0.0)):
@@ -172,7 +167,7 @@ def test_row_sums(mi_loop, name):
 # --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_derivatives_match_central_differences(mi_loop, name):
+def test_derivatives_match_central_differences(name):
     """d/du, d/dv rows = (row(uv + h e) - row(uv - h e)) / 2h at points with barycentrics >= 0.1.
 
     Tolerance: the surface is piecewise polynomial (quartic box splines on
@@ -205,7 +200,7 @@ def no_finite_sharpness(name: str) -> bool:
 
 
 @pytest.mark.parametrize("name", [m for m in MESH_NAMES if no_finite_sharpness(m)])
-def test_derivatives_match_oracle_on_polynomial_patches(mi_loop, name):
+def test_derivatives_match_oracle_on_polynomial_patches(name):
     """d/du, d/dv = the oracle's exact five-point stencil (h = 1/16) on level-1 sub-patches.
 
     A level-1 sub-triangle without a control vertex is one quartic polynomial
@@ -258,7 +253,7 @@ def edge_samples(F):
 
 
 @pytest.mark.parametrize("name", [m for m in MESH_NAMES if len(meshes.MESHES[m].F) > 1])
-def test_c1_across_control_edges(mi_loop, name):
+def test_c1_across_control_edges(name):
     """Positions and unit normals cross(d/du, d/dv) agree from both faces of every shared edge.
 
     On infinitely sharp crease edges only positions must agree. Normals are
@@ -349,7 +344,7 @@ def test_oracle_polynomial_reproduction():
 
 
 @pytest.mark.parametrize("poly", list(POLYNOMIALS))
-def test_polynomial_reproduction(mi_loop, poly):
+def test_polynomial_reproduction(poly):
     XY, F, face_ids, uv, p = lattice_interior_samples()
     W = mi_loop.limit_matrix(F, len(XY), face_ids, uv)
     f, lap = POLYNOMIALS[poly]
@@ -358,7 +353,7 @@ def test_polynomial_reproduction(mi_loop, poly):
     np.testing.assert_allclose(L, expected, rtol=0, atol=1e-11, err_msg=f"{poly}: {worst(err, face_ids, uv)}")
 
 
-def test_quartic_is_not_reproduced(mi_loop):
+def test_quartic_is_not_reproduced():
     """The same check fails for x^4 (the test can fail)."""
     XY, F, face_ids, uv, p = lattice_interior_samples()
     W = mi_loop.limit_matrix(F, len(XY), face_ids, uv)
@@ -380,7 +375,7 @@ def vertex_corners(F, n):
 
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_limit_positions(mi_loop, name):
+def test_limit_positions(name):
     mesh = meshes.MESHES[name]
     n = len(mesh.V)
     W_ref = reference(name)[1]
@@ -426,7 +421,7 @@ def reference_normals(mesh, h, W_ref):
 
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_limit_normals(mi_loop, name):
+def test_limit_normals(name):
     """Unit normals at control vertices: tangent masks (smooth), local eigenvectors (dart, boundary).
 
     Corners have no tangent plane and are only checked for unit length; at an
@@ -459,7 +454,7 @@ def test_limit_normals(mi_loop, name):
         np.testing.assert_allclose(N[regular], normal, rtol=0, atol=1e-9, err_msg=f"{name}: regular {regular}")
 
 
-def test_dart_normal_respects_mirror_symmetry(mi_loop):
+def test_dart_normal_respects_mirror_symmetry():
     """Unit octahedron, one crease edge 0-4 (darts at 0 and 4): the mesh is symmetric under
     y -> -y, so the normal at vertex 0 lies in the x-z plane; it must also equal the limit of
     cross(d/du, d/dv) approaching the vertex (its own limit_matrix at uv = 2^-30)."""

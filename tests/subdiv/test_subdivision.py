@@ -11,15 +11,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import mi_loop
+
 import meshes
 import oracle_loop as oracle
 
 MESH_NAMES = list(meshes.MESHES)
-
-
-@pytest.fixture(scope="module")
-def mi_loop():
-    return pytest.importorskip("mi_loop")
 
 
 def edge_vertices_from_children(F, F_fine, n_vertices):
@@ -39,7 +36,7 @@ def edge_vertices_from_children(F, F_fine, n_vertices):
 
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_one_step_matches_oracle(mi_loop, name):
+def test_one_step_matches_oracle(name):
     mesh = meshes.MESHES[name]
     n = len(mesh.V)
     S, F_fine = mi_loop.subdivision_matrix(mesh.F, n, creases=mesh.creases)
@@ -68,14 +65,14 @@ def test_one_step_matches_oracle(mi_loop, name):
 
 
 @pytest.mark.parametrize("name", MESH_NAMES)
-def test_rows_sum_to_one(mi_loop, name):
+def test_rows_sum_to_one(name):
     mesh = meshes.MESHES[name]
     S, _ = mi_loop.subdivision_matrix(mesh.F, len(mesh.V), creases=mesh.creases)
     np.testing.assert_allclose(np.asarray(S.sum(axis=1)).ravel(), 1.0, rtol=0, atol=1e-14)
     assert S.min() >= 0.0  # Loop's weights are non-negative for every valence
 
 
-def test_tetrahedron_step_by_hand(mi_loop):
+def test_tetrahedron_step_by_hand():
     """Valence 3: beta = (5/8 - (3/8 - 1/8)^2)/3 = 3/16, centre 1 - 3 beta = 7/16."""
     F = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     S, F_fine = mi_loop.subdivision_matrix(F, 4)
@@ -89,7 +86,7 @@ def test_tetrahedron_step_by_hand(mi_loop):
         np.testing.assert_allclose(S.toarray()[m], expected, rtol=0, atol=1e-15, err_msg=f"edge {a}-{b}")
 
 
-def test_boundary_and_crease_rules_by_hand(mi_loop):
+def test_boundary_and_crease_rules_by_hand():
     """Open fan of two triangles (0, 1, 2), (0, 2, 3): 1 and 3 have one face (corners)."""
     F = np.array([[0, 1, 2], [0, 2, 3]])
     S, F_fine = mi_loop.subdivision_matrix(F, 4)
@@ -109,7 +106,7 @@ def test_boundary_and_crease_rules_by_hand(mi_loop):
     np.testing.assert_allclose(D[:4], np.eye(4), rtol=0, atol=1e-15)
 
 
-def test_semi_sharp_sharpness_one_is_sharp_once(mi_loop):
+def test_semi_sharp_sharpness_one_is_sharp_once():
     """Sharpness 1 acts in the first step only: midpoint at step 1, smooth rule at step 2."""
     mesh = meshes.icosahedron_crease_loop(1)
     n = len(mesh.V)

@@ -24,6 +24,7 @@ from mi_loop.subdiv.masks import tangent_masks
 
 import meshes
 import oracle_loop as oracle
+from helpers import bbox_diagonal
 
 TET = meshes.tetrahedron()
 
@@ -45,10 +46,6 @@ def tiny_meshes() -> dict:
 
 
 TINY = tiny_meshes()
-
-
-def bbox_diagonal(V) -> float:
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
 @functools.cache

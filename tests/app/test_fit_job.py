@@ -1,46 +1,27 @@
-"""Tests of ``mi-loop fit`` and ``mi-loop compare`` (mi_loop.app.cli, mi_loop.app.fit_job)."""
+"""The ``mi-loop fit`` job (mi_loop.app.fit_job): outputs, report, bad input, atomic writes, templates."""
 from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import DATA, one_line_error
 from matplotlib import image as mpl_image
 
 from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.mesh.topology import validate_mesh
-from mi_loop.subdiv.limit import limit_matrix
-from mi_loop.subdiv.tessellation import tessellate
 
-MI_LOOP = Path(sys.executable).with_name("mi-loop")
-
-
-
-def torus_error(V, R=1.0, r=0.4):
-    """Analytic distance of points to the torus of radii (R, r) around the z axis."""
-    return np.abs(np.hypot(np.hypot(V[:, 0], V[:, 1]) - R, V[:, 2]) - r)
-
-
-def limit_surface(V, F, level=3):
-    fid, uv, F_t = tessellate(F, level)
-    return limit_matrix(F, len(V), fid, uv) @ V, F_t
-
-
-def write_xyz(path, P, N):
-    np.savetxt(path, np.hstack([P, N]))
-    return path
-
-
-def torus_cloud(n=2000, seed=3):
-    P, N, _ = datasets.noisy_torus_points(n, outliers=0.0, seed=seed)
-    return P, N
-
+from helpers import (
+    DATA,
+    bunny_in_the_scans_frame,
+    limit_surface,
+    one_line_error,
+    run_console,
+    torus_cloud,
+    torus_error,
+    write_xyz,
+)
 
 # -- a successful run ----------------------------------------------------------------
 
@@ -107,8 +88,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
 
 def test_console_script_reports_bad_input_without_traceback(tmp_path):
     out = tmp_path / "out"
-    result = subprocess.run([str(MI_LOOP), "fit", str(tmp_path / "missing.xyz"), "-o", str(out), "--quiet"],
-                            capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, check=False)
+    result = run_console("fit", str(tmp_path / "missing.xyz"), "-o", str(out), "--quiet", timeout=120)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr and result.stderr.count("\n") == 1, result.stderr
     assert re.match(r"mi-loop: error: load_oriented_points\(\): expected an existing file, got '.*missing\.xyz': "
@@ -240,21 +220,6 @@ def test_fit_rejects_an_output_path_under_a_regular_file(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "ok.xyz"]
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--vertices", "50", "--template", "t.ply"], r"argument --template: not allowed with argument --vertices"),
-    (["--samples", "grid"], r"argument --samples: invalid choice: 'grid'"),
-])
-def test_fit_usage_errors_exit_2(argv, message, tmp_path, capsys):
-    out = tmp_path / "out"
-    with pytest.raises(SystemExit) as info:
-        main(["fit", "--demo", "-o", str(out), *argv])
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("mi-loop fit: error: "), err
-    assert re.search(message, err), err
-    assert not out.exists()
-
-
 # -- atomic writes ---------------------------------------------------------------------
 
 
@@ -299,88 +264,6 @@ def test_a_failing_writer_keeps_an_existing_outdir_as_it_was(tmp_path, capsys, m
     assert (out / "control.ply").read_text() == "from an earlier run"
 
 
-# -- mi-loop compare -------------------------------------------------------------------
-
-
-def run_compare(capsys, argv):
-    code = main(["compare", *argv])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    return json.loads(captured.out)
-
-
-def test_compare_control_mesh_with_its_own_limit_surface_is_zero(tmp_path, capsys):
-    V, F = datasets.blob(1)
-    io.write_ply(tmp_path / "control.ply", V, F)
-    io.write_ply(tmp_path / "target.ply", *limit_surface(V, F))
-    result = run_compare(capsys, [str(tmp_path / "control.ply"), str(tmp_path / "target.ply"),
-                                  "--json", str(tmp_path / "sub" / "numbers.json")])
-    two = result["two_sided"]
-    for key in ("p2s_mean", "p2s_rms", "p2s_max", "s2p_mean", "s2p_rms", "s2p_max", "mean", "rms", "hausdorff"):
-        assert 0 <= two[key] < 1e-9, (key, two[key])
-    V_lim = limit_surface(V, F)[0]
-    np.testing.assert_allclose(two["diagonal"], np.linalg.norm(np.ptp(V_lim, axis=0)), rtol=1e-12)
-    nps = result["nps"]
-    for key in ("P2S", "HD", "p2s_fit_to_target", "p2s_target_to_fit"):
-        assert 0 <= nps[key] < 1e-9, (key, nps[key])
-    assert 0 <= nps["NAE"] < 1e-3 and 0 <= nps["NAE_oriented"] < 1e-3     # degrees
-    assert json.loads((tmp_path / "sub" / "numbers.json").read_text()) == result
-
-
-def test_compare_plain_meshes_scaled_spheres_matches_the_offset(tmp_path, capsys):
-    """A convex polyhedron A and B = (1 + delta) A are between delta * r_in and delta apart everywhere,
-    with r_in the smallest distance of A's face planes from the centre and A's vertices on the unit sphere."""
-    delta = 0.01
-    V, F = datasets.icosphere(3)
-    io.write_ply(tmp_path / "a.ply", V, F)
-    io.write_ply(tmp_path / "b.ply", (1 + delta) * V, F)
-    result = run_compare(capsys, [str(tmp_path / "a.ply"), str(tmp_path / "b.ply"), "--mesh"])
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    r_in = np.min(np.einsum("ij,ij->i", n / np.linalg.norm(n, axis=1, keepdims=True), V[F[:, 0]]))
-    lo, hi = delta * r_in * (1 - 1e-9), delta * (1 + 1e-9)
-
-    two = result["two_sided"]
-    np.testing.assert_allclose(two["diagonal"], (1 + delta) * np.linalg.norm(np.ptp(V, axis=0)), rtol=1e-12)
-    for key in ("p2s_mean", "p2s_max", "s2p_mean", "s2p_max", "mean", "rms", "hausdorff"):
-        assert lo <= two[key] * two["diagonal"] <= hi, (key, two[key] * two["diagonal"], lo, hi)
-    nps = result["nps"]
-    np.testing.assert_allclose(nps["scale"], 2 / ((1 + delta) * np.ptp(V, axis=0).max()), rtol=1e-12)
-    for key in ("P2S", "HD", "p2s_fit_to_target", "p2s_target_to_fit"):
-        assert lo <= nps[key] / nps["scale"] <= hi, (key, nps[key] / nps["scale"], lo, hi)
-    assert 0 <= nps["NAE"] < 1.0 and nps["NAE_oriented"] == pytest.approx(nps["NAE"])   # same orientation
-
-
-def test_compare_with_a_point_target_has_no_nps(tmp_path, capsys):
-    V, F = datasets.icosphere(1)
-    V_lim, F_lim = limit_surface(V, F)
-    io.write_ply(tmp_path / "control.ply", V, F)
-    write_xyz(tmp_path / "points.xyz", V_lim, V_lim)                 # the limit points lie on the surface
-    result = run_compare(capsys, [str(tmp_path / "control.ply"), str(tmp_path / "points.xyz")])
-    assert set(result) == {"fitted", "two_sided", "definitions"}
-    assert set(result["definitions"]) == {"two_sided"}
-    two = result["two_sided"]
-    assert two["n_target"] == len(V_lim)
-    assert 0 <= two["p2s_max"] < 1e-9                                  # target points to the surface
-    # surface samples to the nearest target point: positive, at most the longest tessellation edge
-    longest = max(np.linalg.norm(V_lim[F_lim[:, i]] - V_lim[F_lim[:, (i + 1) % 3]], axis=1).max()
-                  for i in range(3))
-    assert 0 < two["s2p_mean"] <= two["s2p_max"] <= longest / two["diagonal"]
-
-
-def test_compare_rejects_bad_files(tmp_path, capsys):
-    io.write_ply(tmp_path / "control.ply", *datasets.icosphere(1))
-    write_xyz(tmp_path / "points.xyz", *torus_cloud(100))
-    line = one_line_error(capsys, ["compare", str(tmp_path / "nope.ply"), str(tmp_path / "points.xyz")])
-    assert re.search(r"read_mesh\(\): expected an existing file, got '.*nope\.ply': no such file$", line), line
-    line = one_line_error(capsys, ["compare", str(tmp_path / "control.ply"), str(tmp_path / "nope.xyz")])
-    assert re.search(r"load_oriented_points\(\): expected an existing file, got '.*nope\.xyz': no such file$",
-                     line), line
-    (tmp_path / "nonman.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 1 1 1\n"
-                                         "f 1 2 3\nf 1 2 4\nf 2 1 5\n")
-    line = one_line_error(capsys, ["compare", str(tmp_path / "nonman.obj"), str(tmp_path / "points.xyz")])
-    assert re.search(r"compare: .*nonman\.obj: .*edge \(0, 1\)", line), line
-
-
 # -- options are checked before any input is read ---------------------------------------
 
 
@@ -402,23 +285,10 @@ def test_a_bad_option_fails_before_the_input_is_read(argv, message, tmp_path, ca
     assert list(tmp_path.iterdir()) == []                          # nothing written, not even OUTDIR
 
 
-def test_the_command_line_defaults_are_the_options_defaults():
-    import dataclasses
-    import inspect
-
-    from mi_loop.app.cli import fit_options
-    from mi_loop.app.parser import build_parser
-    from mi_loop.fitting.options import FitOptions
-    from mi_loop.fitting.static import fit
-
-    assert fit_options(build_parser().parse_args(["fit", "--demo", "-o", "x"])) == FitOptions()
-    signature = inspect.signature(fit).parameters                  # fit()'s keywords read them too
-    for field in dataclasses.fields(FitOptions):
-        assert signature[field.name].default == field.default, field.name
+# -- --template: in the data's frame, polygons split --------------------------------------
 
 
-# -- --template: in the data's frame ---------------------------------------------------
-
+#: The merged bunny range scans (points with normals).
 SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
 
 
@@ -434,31 +304,6 @@ def test_a_template_in_another_frame_is_refused(tmp_path, capsys):
     assert not out.exists()
 
 
-def bunny_in_the_scans_frame():
-    """control/bunny_314.ply mapped box to box onto the range scans (the same axes, another scale)."""
-    P, _, _ = io.load_oriented_points(SCAN)
-    V, F = io.read_mesh(DATA / "control" / "bunny_314.ply")
-    lo, hi = V.min(0), V.max(0)
-    return P, P.min(0) + (V - lo) / (hi - lo) * np.ptp(P, axis=0), F
-
-
-def test_template_frame_check_on_the_shared_bunnies():
-    from mi_loop.app.inputs import check_template_frame
-
-    P, V_scan, _ = bunny_in_the_scans_frame()
-    for name in ("bunny_314", "bunny_4667"):                      # none of them is in the scans' frame
-        V, _ = io.read_mesh(DATA / "control" / f"{name}.ply")
-        with pytest.raises(ValueError, match=r"got a template 9\.\d+x the data's size"):
-            check_template_frame(V, P, "t")
-    info = check_template_frame(V_scan, P, "t")                     # mapped onto the scans: accepted
-    assert info["size_ratio"] == pytest.approx(1.0) and info["centre_offset"] < 1e-12
-    shifted = V_scan + [0.3 * np.linalg.norm(np.ptp(P, axis=0)), 0, 0]   # 0.3 diagonals aside
-    with pytest.raises(ValueError, match=r"got a template 1x the data's size whose centre is 0\.3 data diagonals"):
-        check_template_frame(shifted, P, "t")
-    with pytest.raises(ValueError, match=r"got a template 2\.5x"):
-        check_template_frame(2.5 * (V_scan - P.mean(0)) + P.mean(0), P, "t")
-
-
 @pytest.mark.slow
 def test_a_template_in_the_datas_frame_fits_the_scan(tmp_path, capsys):
     _P, V, F = bunny_in_the_scans_frame()
@@ -470,79 +315,6 @@ def test_a_template_in_the_datas_frame_fits_the_scan(tmp_path, capsys):
     report = json.loads((out / "report.json").read_text())
     assert report["template"]["source"] == "file" and report["template"]["size_ratio"] == pytest.approx(1.0)
     assert report["metrics"]["mean"] < 0.01
-
-
-# -- pictures: no backend switch, every energy term visible ---------------------------
-
-
-def test_a_fit_leaves_the_callers_matplotlib_backend_alone(tmp_path, capsys, monkeypatch):
-    import matplotlib
-
-    import mi_loop.app.report
-
-    monkeypatch.setattr(mi_loop.app.report, "side_by_side", lambda *a, **k: np.zeros((8, 16, 3)))
-    before = matplotlib.get_backend()
-    matplotlib.use("svg")                                          # a program drawing SVG with pyplot
-    try:
-        P, N = torus_cloud(2000)
-        code = main(["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(tmp_path / "out"),
-                     "--vertices", "60", "--iterations", "10", "--quiet"])
-        assert code == 0, capsys.readouterr().err
-        assert matplotlib.get_backend() == "svg"
-    finally:
-        matplotlib.use(before)
-
-
-# -- mi-loop compare: what was measured, and what the numbers mean ---------------------
-
-
-def test_compare_output_defines_its_numbers(tmp_path, capsys):
-    V, F = datasets.icosphere(2)
-    io.write_ply(tmp_path / "a.ply", V, F)
-    io.write_ply(tmp_path / "b.ply", 1.01 * V, F)
-    result = run_compare(capsys, [str(tmp_path / "a.ply"), str(tmp_path / "b.ply")])
-    assert result["fitted"] == {"path": str(tmp_path / "a.ply"), "n_vertices": 162,
-                                "as": "control mesh (its limit surface at level 3)"}
-    definitions = result["definitions"]
-    assert set(definitions) == {"two_sided", "nps"}
-    assert {"P2S", "HD", "NAE", "units"} <= set(definitions["nps"])
-    assert "degrees" in definitions["nps"]["NAE"] and "largest extent is 2" in definitions["nps"]["units"]
-    assert "bounding-box diagonal" in definitions["two_sided"]["units"]
-    for key in result["two_sided"]:                                # every number has its definition
-        assert any(key in name.split(", ") for name in definitions["two_sided"]) or key == "diagonal"
-
-
-def test_compare_help_defines_the_metrics(capsys):
-    with pytest.raises(SystemExit) as info:
-        main(["compare", "--help"])
-    assert info.value.code == 0
-    text = " ".join(capsys.readouterr().out.split())
-    for phrase in ("P2S: point-to-surface distance", "HD: Hausdorff distance", "NAE: normal angle error in degrees",
-                   "fractions of the target's bounding-box diagonal", "--control", "--mesh"):
-        assert phrase in text, phrase
-
-
-def test_compare_measures_a_dense_mesh_as_it_is_and_says_so(tmp_path, capsys, monkeypatch):
-    from mi_loop.app import compare_job
-
-    monkeypatch.setattr(compare_job, "CONTROL_VERTEX_LIMIT", 100)   # icosphere(2): 162 vertices
-    V, F = datasets.icosphere(2)
-    io.write_ply(tmp_path / "limit.ply", V, F)
-    io.write_ply(tmp_path / "target.ply", V, F)
-    code = main(["compare", str(tmp_path / "limit.ply"), str(tmp_path / "target.ply")])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    result = json.loads(captured.out)
-    assert result["fitted"]["as"] == "plain triangle mesh"
-    assert result["two_sided"]["hausdorff"] < 1e-9                  # the same mesh: measured as it is
-    assert ("FITTED 'limit.ply' has 162 vertices (more than 100): measuring it as a plain triangle mesh; "
-            "pass --control to evaluate its limit surface") in captured.err
-    code = main(["compare", str(tmp_path / "limit.ply"), str(tmp_path / "target.ply"), "--control", "--quiet"])
-    captured = capsys.readouterr()
-    assert code == 0 and captured.err == ""
-    result = json.loads(captured.out)
-    assert result["fitted"]["as"] == "control mesh (its limit surface at level 3)"
-    assert result["two_sided"]["hausdorff"] > 1e-3                  # the limit surface shrinks inside
 
 
 CUBE_OBJ = ("v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n"
@@ -562,6 +334,27 @@ def test_a_quad_template_is_split_with_a_warning_and_recorded(tmp_path, capsys):
          "were split into triangles (12 triangles); the Loop surface of the triangulated mesh is fitted")]
     template = json.loads((out / "report.json").read_text())["template"]
     assert template["split_polygons"] == 6 and template["n_faces"] == 12 and template["source"] == "file"
+
+
+# -- pictures, divergence, progress ------------------------------------------------------
+
+
+def test_a_fit_leaves_the_callers_matplotlib_backend_alone(tmp_path, capsys, monkeypatch):
+    import matplotlib
+
+    import mi_loop.app.report
+
+    monkeypatch.setattr(mi_loop.app.report, "side_by_side", lambda *a, **k: np.zeros((8, 16, 3)))
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")                                          # a program drawing SVG with pyplot
+    try:
+        P, N = torus_cloud(2000)
+        code = main(["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(tmp_path / "out"),
+                     "--vertices", "60", "--iterations", "10", "--quiet"])
+        assert code == 0, capsys.readouterr().err
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(before)
 
 
 def test_a_diverging_fit_is_one_line(tmp_path, capsys, monkeypatch):

@@ -1,0 +1,135 @@
+"""The package as users meet it: what an import loads, Mitsuba's usual order, public names and their docs."""
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import inspect
+import pkgutil
+
+import pytest
+
+import mi_loop
+
+from helpers import run_python
+
+
+def modules():
+    """Every module of the package except ``__main__`` (which runs the CLI)."""
+    names = ["mi_loop"] + [m.name for m in pkgutil.walk_packages(mi_loop.__path__, "mi_loop.")]
+    return [n for n in names if not n.endswith("__main__")]
+
+
+def test_limit_evaluator_and_plugin_need_neither_pymeshlab_nor_matplotlib_nor_tqdm():
+    """Block the three fitting-side packages; the limit operator, the plugin and a render still work."""
+    code = """
+import sys
+for name in ("pymeshlab", "matplotlib", "tqdm"):
+    sys.modules[name] = None          # any import of them now raises ImportError
+import numpy as np, drjit as dr, mitsuba as mi, mi_loop
+from mi_loop import datasets, plugin
+mi_loop.set_variant("llvm_ad_rgb")
+V, F = datasets.blob()
+fid, uv, _ = mi_loop.tessellate(F, 2)
+W = mi_loop.limit_matrix(F, len(V), fid, uv)
+op = mi_loop.LimitOperator(F, len(V), fid, uv)
+P = np.array(op.positions(mi.Float(V.astype(np.float32).ravel()))).T
+shape = plugin.create(V, F, level=2)
+scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"}, "sensor": {"type": "perspective",
+    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+    "film": {"type": "hdrfilm", "width": 16, "height": 16}}, "emitter": {"type": "constant"}, "shape": shape})
+img = mi.render(scene, spp=4)
+print(float(np.abs(W @ V - P).max()), float(np.asarray(img).mean()) > 0)
+"""
+    result = run_python(code)
+    assert result.returncode == 0, result.stderr
+    err, lit = result.stdout.split()
+    assert float(err) < 1e-5 and lit == "True"
+
+
+def test_mitsubas_usual_order_finds_the_plugin(scenes_dir):
+    """``mi.set_variant``, then ``import mi_loop``, then ``mi.load_file``: loop_subdiv is registered."""
+    code = f"""
+import mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import mi_loop
+scene = mi.load_file({str(scenes_dir / 'blob.xml')!r})
+shape = [s for s in scene.shapes() if "LoopSubdiv" in type(s).__name__]
+print(len(shape), shape[0].face_count())
+"""
+    result = run_python(code)
+    assert result.returncode == 0, result.stderr
+    count, faces = result.stdout.split()
+    assert count == "1" and int(faces) == 80 * 4 ** 3          # blob.ply: 80 faces, level 3
+
+
+def test_register_after_a_user_set_variant():
+    code = """
+import mitsuba as mi, mi_loop
+mi.set_variant("llvm_ad_rgb")
+cls = mi_loop.register()
+print(cls.__name__)
+"""
+    result = run_python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "LoopSubdivMesh"
+
+
+def test_register_without_a_jit_variant_is_refused():
+    code = """
+import mitsuba as mi, mi_loop
+mi.set_variant("scalar_rgb")
+try:
+    mi_loop.register()
+except RuntimeError as exc:
+    print(exc)
+"""
+    result = run_python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("register(): expected a Mitsuba llvm_ad_* or cuda_ad_* variant to be set, "
+                                    "got 'scalar_rgb'")
+
+
+@pytest.mark.parametrize("name", modules())
+def test_every_module_declares_its_public_names(name):
+    module = importlib.import_module(name)
+    assert hasattr(module, "__all__"), f"{name} has no __all__"
+    missing = [n for n in module.__all__ if not hasattr(module, n)]
+    assert not missing, f"{name}.__all__ lists names it does not define: {missing}"
+
+
+def public_callables():
+    """``(qualified name, object)`` of every function and class listed in an ``__all__``."""
+    seen = {}
+    for name in modules():
+        module = importlib.import_module(name)
+        for attr in getattr(module, "__all__", []):
+            obj = getattr(module, attr, None)
+            if (inspect.isfunction(obj) or inspect.isclass(obj)) and obj.__module__ == name:
+                seen[f"{name}.{attr}"] = obj
+    return sorted(seen.items())
+
+
+def _parameters(obj):
+    target = obj.__init__ if inspect.isclass(obj) else obj
+    try:
+        params = inspect.signature(target).parameters
+    except (TypeError, ValueError):
+        return []
+    return [p for p in params if p not in ("self", "cls", "args", "kwargs")]
+
+
+@pytest.mark.parametrize("qualname, obj", public_callables(), ids=[q for q, _ in public_callables()])
+def test_public_names_have_numpydoc_parameters(qualname, obj):
+    """Every public function or class with parameters documents them in a numpydoc Parameters section."""
+    doc = inspect.getdoc(obj) or ""
+    assert doc, f"{qualname} has no docstring"
+    if inspect.isclass(obj) and not _parameters(obj):
+        return
+    if _parameters(obj):
+        section = "Attributes\n----------" if dataclasses.is_dataclass(obj) else "Parameters\n----------"
+        assert section in doc or "Parameters\n----------" in doc, \
+            f"{qualname} has no numpydoc {section.split()[0]} section"
+        undocumented = [p for p in _parameters(obj) if not any(
+            line.split(":")[0].strip().split(",")[0].strip() == p or p in [s.strip() for s in
+            line.split(":")[0].split(",")] for line in doc.splitlines())]
+        assert not undocumented, f"{qualname} does not document {undocumented}"
