@@ -35,28 +35,34 @@ def _csr_to_padded(M: sp.csr_matrix):
 
 
 class _Padded:
-    """A padded sparse matrix on the device: ``y_i = sum_j W[i, j] x[idx[i, j]]``.
+    """Padded sparse rows on the device sharing one index table: ``y_d,i = sum_j W_d[i, j] x[idx[i, j]]``.
 
     One gather of all ``rows * width`` entries (an :class:`~mi_loop.ad.sparse.IndexMap`,
     whose reverse pass is the transposed gather), then a block sum over each
-    row: no atomics in either direction, so gradients are bit-reproducible.
+    row per weight table: no atomics in either direction, so gradients are
+    bit-reproducible. Positions and both derivatives of a sample set have the
+    same index table, so :meth:`apply` gathers once for all three.
     """
 
-    def __init__(self, idx: np.ndarray, W: np.ndarray, n_cols: int):
+    def __init__(self, idx: np.ndarray, weights: dict, n_cols: int):
         from mi_loop.ad.sparse import IndexMap
         from mi_loop.ad.upload import upload_float
 
-        self.shape = idx.shape
+        self.width = idx.shape[1]
         self.gather = IndexMap(np.ascontiguousarray(idx, dtype=np.int64).ravel(), n_cols)
-        self.w = upload_float(W)
+        self.w = {d: upload_float(W) for d, W in weights.items()}
 
-    def apply(self, x):
-        """``x``: ``mi.Point3f`` or ``mi.Vector3f`` of width ``n_cols``; returns the same type, width ``rows``."""
+    def apply(self, x, names=(None,)):
+        """Rows ``names`` applied to ``x`` (``mi.Point3f``/``mi.Vector3f`` of width ``n_cols``): a list."""
         import drjit as dr
 
         cls = type(x)
-        terms = self.w * self.gather(x)
-        return cls(*(dr.block_sum(terms[c], self.shape[1], mode="symbolic") for c in range(3)))
+        gathered = self.gather(x)
+        out = []
+        for d in names:
+            terms = self.w[d] * gathered
+            out.append(cls(*(dr.block_sum(terms[c], self.width, mode="symbolic") for c in range(3))))
+        return out
 
 
 class LimitOperator:
@@ -109,9 +115,12 @@ class LimitOperator:
     # -- Dr.Jit ---------------------------------------------------------------
     def _dev(self):
         if self._device is None:
-            self._device = {"S": _Padded(*_csr_to_padded(self._S), self.n)}
-            for d, (idx, W) in self._rows.items():
-                self._device[d] = _Padded(idx, W, self._n_level)
+            S_idx, S_w = _csr_to_padded(self._S)
+            idx = self._rows[None][0]          # level_rows gives every derivative the same index table
+            if any(i is not idx for i, _ in self._rows.values()):
+                raise RuntimeError("LimitOperator: internal error: derivative rows with their own index tables")
+            self._device = {"S": _Padded(S_idx, {None: S_w}, self.n),
+                            "rows": _Padded(idx, {d: W for d, (_, W) in self._rows.items()}, self._n_level)}
         return self._device
 
     def _points(self, x):
@@ -138,13 +147,14 @@ class LimitOperator:
         if "u" not in self._rows:
             raise ValueError("LimitOperator.evaluate(): built with derivatives=False")
         dev = self._dev()
-        xL = dev["S"].apply(self._points(x))
-        return dev[None].apply(xL), dev["u"].apply(mi.Vector3f(xL)), dev["v"].apply(mi.Vector3f(xL))
+        xL = dev["S"].apply(self._points(x))[0]
+        P, du, dv = dev["rows"].apply(xL, DERIVATIVES)
+        return P, mi.Vector3f(du), mi.Vector3f(dv)
 
     def positions(self, x):
         """Limit points ``mi.Point3f (k)`` of control points ``x`` (see :meth:`evaluate`)."""
         dev = self._dev()
-        return dev[None].apply(dev["S"].apply(self._points(x)))
+        return dev["rows"].apply(dev["S"].apply(self._points(x))[0])[0]
 
     def positions_normals(self, x):
         """Limit points and unit limit normals from one evaluation: ``(mi.Point3f, mi.Normal3f)``."""

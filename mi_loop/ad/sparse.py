@@ -41,6 +41,13 @@ __all__ = ["IndexMap", "SegmentSum", "gather"]
 MAX_WIDTH = 32
 
 
+def _stable_order(seg: np.ndarray, n: int) -> np.ndarray:
+    """Stable sort order of segment labels (a radix sort when they fit in 16 bits)."""
+    if n <= 1 << 16:
+        return np.argsort(seg.astype(np.uint16), kind="stable")
+    return np.argsort(seg, kind="stable")
+
+
 def _levels(seg: np.ndarray, n: int):
     """NumPy tables ``[(positions, active, width)]`` of the chunked reduction of ``seg``."""
     levels = []
@@ -49,14 +56,13 @@ def _levels(seg: np.ndarray, n: int):
         if len(seg) == n and np.array_equal(seg, np.arange(n)):
             return levels
         width = int(min(max(counts.max(initial=1), 1), MAX_WIDTH))
-        order = np.argsort(seg, kind="stable")
+        order = _stable_order(seg, n)
         chunks = np.maximum(1, -(-counts // width))              # ceil, an empty segment keeps one chunk
-        first_chunk = np.concatenate([[0], np.cumsum(chunks)[:-1]])
+        first_slot = width * np.concatenate([[0], np.cumsum(chunks)[:-1]])
         first_entry = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        rank = np.arange(len(seg)) - np.repeat(first_entry, counts)   # position within its segment
-        sorted_seg = seg[order]
-        slot = (first_chunk[sorted_seg] + rank // width) * width + rank % width
-        positions = np.zeros(int(chunks.sum()) * width, dtype=np.int64)
+        # a segment's sorted entries fill consecutive slots from its first chunk on
+        slot = np.arange(len(seg)) + np.repeat(first_slot - first_entry, counts)
+        positions = np.zeros(int(chunks.sum()) * width, dtype=np.uint32)
         active = np.zeros(len(positions), dtype=bool)
         positions[slot], active[slot] = order, True
         levels.append((positions, active, width))
@@ -120,6 +126,7 @@ class SegmentSum:
         if self.m == 0:
             return dr.zeros(type(v), self.n)
         for positions, active, width in self._levels:
+            dr.eval(v)   # all components of the source in one kernel (a gather would evaluate them one by one)
             v = dr.block_sum(dr.gather(type(v), v, positions, active), width, mode="symbolic")
         return v
 
