@@ -27,6 +27,12 @@ Three parts, each printing Markdown tables:
     occlusion test); NPS metrics against the clean mesh and the ratio to the
     clean fit. Noise and outliers use alpha 0.1 (thesis, noisy data) and 0.01.
 
+``cli``
+    ``mi-loop fit SCAN --vertices 314`` and ``4667`` as a user runs them
+    (``--runs`` times each, not part of ``all``): wall seconds from process
+    start to exit (import, reading, template, fit, metrics, pictures, writing)
+    and the fit's own total from ``report.json``.
+
 Usage::
 
     cd <repository root>
@@ -34,6 +40,7 @@ Usage::
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py scan --runs 3 --h0 0.005 0.0005
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py nps
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py robust
+    PYTHONPATH=. .venv/bin/python bench/bench_fit.py cli --runs 3
     PYTHONPATH=. .venv/bin/python bench/bench_fit.py scan --quick   # timings: default fits only (~2 min)
 
 ``--json PATH`` also writes every row as JSON. Every table header repeats the
@@ -304,9 +311,34 @@ def bench_robust(args, out: list) -> None:
           ["input", "P2S", "HD", "NAE", "ratio P2S / HD / NAE", "notes"], rows)
 
 
+def bench_cli(args, out):
+    """``mi-loop fit SCAN --vertices N`` as a user runs it: wall seconds and the fit's own total."""
+    import shutil
+    import tempfile
+
+    cli = ROOT / ".venv" / "bin" / "mi-loop"
+    rows = []
+    for n in (314, 4667):
+        walls, fits = [], []
+        for _ in range(args.runs):
+            work = Path(tempfile.mkdtemp())
+            t = time.perf_counter()
+            subprocess.run([str(cli), "fit", str(SCAN), "-o", str(work / "out"), "--vertices", str(n), "--quiet"],
+                           check=True, capture_output=True)
+            walls.append(time.perf_counter() - t)
+            fits.append(json.loads((work / "out" / "report.json").read_text())["timings_s"]["total"])
+            shutil.rmtree(work)
+        row = {"part": "cli", "vertices": n, "wall_s": walls, "fit_s": fits}
+        out.append(row)
+        rows.append([str(n), str(args.runs), f"{np.median(fits):.2f} ({min(fits):.2f}-{max(fits):.2f})",
+                     f"{np.median(walls):.2f} ({min(walls):.2f}-{max(walls):.2f})"])
+    table("mi-loop fit on the bunny scan, as a user runs it (seconds: median (min-max))",
+          ["control vertices", "runs", "fit (report.json total)", "wall (process start to exit)"], rows)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("part", choices=("scan", "nps", "robust", "all"))
+    ap.add_argument("part", choices=("scan", "nps", "robust", "cli", "all"))
     ap.add_argument("--runs", type=int, default=3, help="runs of the default scan fits (median timings)")
     ap.add_argument("--h0", type=float, nargs="*", default=[0.005, 0.0005],
                     help="extra IMLS radii (unit box) tried at the largest scan size")
@@ -331,8 +363,8 @@ def main(argv=None) -> None:
     mi_loop.set_variant("llvm_ad_rgb")
     print(header() + (f"\nfit() options: {FIT_OPTIONS}" if FIT_OPTIONS else ""))
     out, t0 = [], time.perf_counter()
-    for part, fn in (("scan", bench_scan), ("nps", bench_nps), ("robust", bench_robust)):
-        if args.part in (part, "all"):
+    for part, fn in (("scan", bench_scan), ("nps", bench_nps), ("robust", bench_robust), ("cli", bench_cli)):
+        if args.part == part or (args.part == "all" and part != "cli"):
             t = time.perf_counter()
             fn(args, out)
             print(f"\n({part}: {time.perf_counter() - t:.0f} s)")

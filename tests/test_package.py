@@ -5,12 +5,13 @@ import dataclasses
 import importlib
 import inspect
 import pkgutil
+import subprocess
 
 import pytest
 
 import mi_loop
 
-from helpers import run_python
+from helpers import REPO, run_python
 
 
 def modules():
@@ -133,3 +134,52 @@ def test_public_names_have_numpydoc_parameters(qualname, obj):
             line.split(":")[0].strip().split(",")[0].strip() == p or p in [s.strip() for s in
             line.split(":")[0].split(",")] for line in doc.splitlines())]
         assert not undocumented, f"{qualname} does not document {undocumented}"
+
+
+def test_the_public_api_of_0_1_keeps_working():
+    """``limit_matrix``, ``subdivision_matrix``, ``LimitOperator(...).positions/evaluate/normals``
+    with a flat ``mi.Float``, ``plugin.create`` and ``set_variant``, as 0.1 documented them."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    from mi_loop import datasets, plugin
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    V, F = datasets.blob()
+    fid, uv, _ = mi_loop.tessellate(F, 2)
+    W = mi_loop.limit_matrix(F, len(V), fid, uv)
+    S, F_fine = mi_loop.subdivision_matrix(F, len(V))
+    op = mi_loop.LimitOperator(F, len(V), fid, uv)
+    x = mi.Float(V.astype(np.float32).ravel())
+    P = np.array(op.positions(x)).T
+    P2, du, dv = (np.array(a).T for a in op.evaluate(x))
+    N = np.array(op.normals(x)).T
+    np.testing.assert_allclose(P, W @ V, atol=1e-5)
+    np.testing.assert_array_equal(P, P2)
+    np.testing.assert_allclose(N, np.cross(du, dv) / np.linalg.norm(np.cross(du, dv), axis=1, keepdims=True),
+                               atol=1e-5)
+    assert S.shape[1] == len(V) and len(F_fine) == 4 * len(F)
+    np.testing.assert_allclose(np.asarray(S.sum(axis=1)).ravel(), 1.0)     # affine: rows sum to one
+    shape = plugin.create(V, F, level=2)
+    assert dr.width(mi.traverse(shape)["control_points"]) == 3 * len(V)
+
+
+@pytest.mark.slow
+def test_pip_install_alone_gives_a_working_mi_loop(tmp_path):
+    """``pip install .`` into a fresh virtual environment (this machine has a libLLVM >= 16):
+    ``mi-loop --version`` and the demo fit run from outside the repository."""
+    import venv
+
+    venv.create(tmp_path / "env", with_pip=True)
+    python, cli = tmp_path / "env" / "bin" / "python", tmp_path / "env" / "bin" / "mi-loop"
+    install = subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check",
+                              str(REPO)], capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert install.returncode == 0, install.stderr[-2000:]
+    version = subprocess.run([str(cli), "--version"], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert version.stdout.startswith(f"mi-loop {mi_loop.__version__} (mitsuba "), version.stdout + version.stderr
+    demo = subprocess.run([str(cli), "fit", "--demo", "-o", "out", "--quiet", "--iterations", "40"],
+                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert demo.returncode == 0, demo.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "control.ply", "limit.ply", "loss.png", "render.png", "report.json"]
