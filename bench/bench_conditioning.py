@@ -18,9 +18,21 @@ case of the reproducibility issue), the defaults of ``mi-loop fit-sequence``;
 ``--image`` adds the image term (20 views, run with ``deterministic=True`` so
 that the only difference is the perturbation).
 
+Two experiments probe where the growth comes from (neither is a package option):
+
+- ``--refresh-once``: IMLS neighbour lists and coverage assignments are built
+  once per frame instead of every 10 iterations (the energy is then smooth
+  within a frame);
+- ``--adam-epsilon E``: Adam's epsilon (Dr.Jit's default 1e-8). Adam divides
+  each coordinate's step by the root of its running squared gradient, so a
+  coordinate whose gradient is tiny (a control point sliding along a flat
+  valley) still takes a full step; a larger epsilon damps such steps.
+
 Usage::
 
-    .venv/bin/python bench/bench_conditioning.py [--eps 1e-6] [--image] [--json out.json]
+    .venv/bin/python bench/bench_conditioning.py [--eps 1e-6] [--image] [--alpha A] [--json out.json]
+    .venv/bin/python bench/bench_conditioning.py --eps 1e-8 --refresh-once
+    .venv/bin/python bench/bench_conditioning.py --eps 1e-8 --adam-epsilon 1e-5
 """
 from __future__ import annotations
 
@@ -67,11 +79,37 @@ def run(frames, F_data, options, perturb=None, seed=0):
     return fits, F
 
 
+def _experiments(args) -> None:
+    """Patch the package for the ``--refresh-once`` and ``--adam-epsilon`` experiments (this process only)."""
+    import drjit as dr
+
+    from mi_loop.energies.coverage import Coverage
+    from mi_loop.energies.imls import IMLS
+
+    if args.refresh_once:
+        for cls in (IMLS, Coverage):
+            def once(self, Q, _update=cls.update):
+                if not getattr(self, "_built_once", False):
+                    self._built_once = True
+                    _update(self, Q)
+            cls.update = once
+    if args.adam_epsilon is not None:
+        adam_init = dr.opt.Adam.__init__
+
+        def init(self, *a, _init=adam_init, **k):
+            k.setdefault("epsilon", args.adam_epsilon)
+            _init(self, *a, **k)
+        dr.opt.Adam.__init__ = init
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--eps", type=float, default=1e-6)
     parser.add_argument("--image", action="store_true")
     parser.add_argument("--alpha", type=float, help="ARAP weight (default: SequenceOptions's)")
+    parser.add_argument("--refresh-once", action="store_true",
+                        help="experiment: neighbour lists built once per frame, not every 10 iterations")
+    parser.add_argument("--adam-epsilon", type=float, help="experiment: Adam's epsilon (default 1e-8)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
 
@@ -80,6 +118,7 @@ def main(argv=None) -> int:
     from mi_loop.subdiv.masks import limit_mesh, limit_normals
 
     mi_loop.set_variant("llvm_ad_rgb")
+    _experiments(args)
     data = np.load(FOX)
     frames = [np.asarray(data["vertices"][t], dtype=np.float64) for t in FRAMES]
     options = SequenceOptions(image=args.image, deterministic=True,
@@ -91,7 +130,9 @@ def main(argv=None) -> int:
     perturb = args.eps * diag * d / np.linalg.norm(d, axis=1).max()
     other, _ = run(frames, data["faces"], options, perturb)
     print(f"# bench_conditioning: {os.cpu_count()} cores, eps {args.eps:g} of the diagonal, "
-          f"image term {'on' if args.image else 'off'}, alpha {options.alpha:g}")
+          f"image term {'on' if args.image else 'off'}, alpha {options.alpha:g}"
+          f"{', neighbour lists once per frame' if args.refresh_once else ''}"
+          f"{f', Adam epsilon {args.adam_epsilon:g}' if args.adam_epsilon else ''}")
     print("| frame | ctrl max | ctrl median | tangential | limit mean | gain |")
     print("|---:|---:|---:|---:|---:|---:|")
     rows = []

@@ -5,6 +5,7 @@ Writes out/01_blob.png (about 10 s on 2 CPU cores, most of it kernel compilation
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import mi_loop
 from mi_loop import datasets, io, render
 
 REPO = Path(__file__).resolve().parent.parent
-OUT = REPO / "out"
+OUT = Path(os.environ.get("MI_LOOP_EXAMPLES_OUT", REPO / "out"))   # tests write elsewhere
 
 
 def main() -> None:

@@ -19,6 +19,7 @@ load 1-3, 4 min at load 5 (400 iterations of two 128^2 renders at 4 spp).
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from mi_loop.metrics import two_sided
 from mi_loop.render.multiview import Renderer
 from mi_loop.subdiv.limit import limit_matrix
 
-OUT = Path(__file__).resolve().parent.parent / "out"
+OUT = Path(os.environ.get("MI_LOOP_EXAMPLES_OUT", Path(__file__).resolve().parent.parent / "out"))
 TARGET = Path(__file__).resolve().parents[2] / "shared" / "data" / "static" / "spot.obj"
 ITERATIONS, LR, LR_FINAL = 400, 0.02, 0.002   # Adam steps; step sizes in units of the bbox diagonal
 ALPHA, REST_EVERY = 0.1, 20                    # ARAP weight (per control point); rest-shape reset period

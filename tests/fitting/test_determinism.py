@@ -68,3 +68,16 @@ def test_image_term_with_deterministic_is_bit_identical():
     a, b = run_sequence(options, True), run_sequence(options, True)
     for t, (x, y) in enumerate(zip(a, b)):
         np.testing.assert_array_equal(x, y, err_msg=f"frame {t}")
+
+
+def test_static_fit_does_not_depend_on_the_thread_count():
+    """The summation orders are fixed by the index tables, not by the thread schedule."""
+    P, N, _ = datasets.noisy_torus_points(20_000)
+    threads = dr.thread_count()
+    two = fit(P, N, n_vertices=300, max_iterations=40)
+    dr.set_thread_count(1)
+    try:
+        one = fit(P, N, n_vertices=300, max_iterations=40)
+    finally:
+        dr.set_thread_count(threads)
+    np.testing.assert_array_equal(one.V, two.V)
