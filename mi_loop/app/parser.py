@@ -87,7 +87,7 @@ def _common(top: bool) -> argparse.ArgumentParser:
     """``--quiet`` and ``--debug``; after the subcommand they must not reset a value given before it."""
     p = argparse.ArgumentParser(add_help=False)
     extra = {} if top else {"default": argparse.SUPPRESS}
-    p.add_argument("--quiet", action="store_true", help=QUIET_HELP, **extra)
+    p.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP, **extra)
     p.add_argument("--debug", action="store_true", help=DEBUG_HELP, **extra)
     return p
 

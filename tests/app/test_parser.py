@@ -45,7 +45,7 @@ def test_fit_usage_errors_exit_2(argv, message, tmp_path, capsys):
                                      ["compare", "a.ply", "b.ply"], ["control", "blob", "-o", "x.ply"]])
 def test_every_command_accepts_quiet_and_debug_before_or_after_it(command):
     parser = build_parser()
-    for argv in ([*command, "--quiet"], ["--quiet", *command]):
+    for argv in ([*command, "--quiet"], ["--quiet", *command], [*command, "-q"], ["-q", *command]):
         args = parser.parse_args(argv)
         assert args.quiet is True and args.debug is False
     assert parser.parse_args(command).quiet is False
