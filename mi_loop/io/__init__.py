@@ -8,6 +8,7 @@ through it); it sits just above :mod:`mi_loop.mesh`.
 - :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
 - :mod:`~mi_loop.io.points`: :func:`load_oriented_points` (point clouds, or meshes sampled);
 - :mod:`~mi_loop.io.formats`, :mod:`~mi_loop.io.ply`: the file formats, as polygon lists;
+- :mod:`~mi_loop.io.srgb`: the sRGB curve (:func:`srgb_to_linear`, :func:`linear_to_srgb`);
 - :mod:`~mi_loop.io.files`: atomic writes (:func:`write_png`, :func:`write_text`),
   :func:`staged_outputs`, output directories.
 
@@ -31,9 +32,11 @@ from mi_loop.io.meshes import (
     ControlMesh,
     read_control_mesh,
     read_mesh,
+    read_vertex_colors,
     write_ply,
 )
 from mi_loop.io.points import POINT_SUFFIXES, load_oriented_points
+from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
 __all__ = [
     "FRAME_SUFFIXES",
@@ -43,11 +46,14 @@ __all__ = [
     "atomic_open",
     "ensure_writable_dir",
     "first_missing_ancestor",
+    "linear_to_srgb",
     "load_oriented_points",
     "read_control_mesh",
     "read_frames",
     "read_mesh",
+    "read_vertex_colors",
     "remove_if_empty",
+    "srgb_to_linear",
     "staged_outputs",
     "write_ply",
     "write_png",

@@ -16,8 +16,13 @@ import numpy as np
 from mi_loop.errors import fail
 from mi_loop.io.files import atomic_open
 from mi_loop.io.formats import MESH_SUFFIXES, fan_triangulate, read_polygons
+from mi_loop.io.ply import read_ply
+from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
-__all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_mesh", "write_ply"]
+__all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_mesh", "read_vertex_colors", "write_ply"]
+
+#: Float32 linear vertex colours in the PLY files mi_loop writes (next to 8-bit sRGB ``red green blue``).
+_ALBEDO = ("albedo_r", "albedo_g", "albedo_b")
 
 
 @dataclass(frozen=True)
@@ -120,7 +125,7 @@ def _read(path, func: str) -> ControlMesh:
     return ControlMesh(V, F, n_split)
 
 
-def write_ply(path, V, F, normals=None) -> Path:
+def write_ply(path, V, F, normals=None, colors=None) -> Path:
     """Write a triangle mesh as a binary little-endian PLY file, atomically.
 
     Parameters
@@ -133,6 +138,11 @@ def write_ply(path, V, F, normals=None) -> Path:
         Triangles, indices in ``[0, n)``.
     normals : (n, 3) float array-like, optional
         Per-vertex normals, stored as float32 (``nx ny nz``).
+    colors : (n, 3) float array-like, optional
+        Per-vertex linear RGB (an albedo) in [0, 1], stored twice: as 8-bit
+        sRGB ``red green blue`` (what mesh viewers show) and as float32 linear
+        ``albedo_r albedo_g albedo_b`` (exact; :func:`read_vertex_colors`
+        prefers it).
 
     Returns
     -------
@@ -162,6 +172,14 @@ def write_ply(path, V, F, normals=None) -> Path:
             fail("write_ply", f"normals of shape {V.shape}", f"shape {normals.shape}")
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
         header += ["property float nx", "property float ny", "property float nz"]
+    if colors is not None:
+        colors = np.asarray(colors, dtype=np.float32)
+        if colors.shape != V.shape or not np.isfinite(colors).all():
+            fail("write_ply", f"finite colors of shape {V.shape}", f"shape {colors.shape}"
+                 + ("" if colors.shape != V.shape else " with non-finite values"))
+        fields += [(c, "u1") for c in ("red", "green", "blue")] + [(c, "<f4") for c in _ALBEDO]
+        header += [f"property uchar {c}" for c in ("red", "green", "blue")]
+        header += [f"property float {c}" for c in _ALBEDO]
     header += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
 
     vertices = np.empty(len(V), dtype=fields)
@@ -169,6 +187,11 @@ def write_ply(path, V, F, normals=None) -> Path:
         vertices[axis] = V[:, i]
         if normals is not None:
             vertices["n" + axis] = normals[:, i]
+    if colors is not None:
+        encoded = np.round(255.0 * linear_to_srgb(colors)).astype(np.uint8)
+        for i, c in enumerate(("red", "green", "blue")):
+            vertices[c] = encoded[:, i]
+            vertices[_ALBEDO[i]] = colors[:, i]
     faces = np.empty(len(F), dtype=[("count", "u1"), ("indices", "<i4", (3,))])
     faces["count"] = 3
     faces["indices"] = F
@@ -178,3 +201,37 @@ def write_ply(path, V, F, normals=None) -> Path:
         f.write(vertices.tobytes())
         f.write(faces.tobytes())
     return path
+
+
+def read_vertex_colors(path) -> np.ndarray | None:
+    """Read per-vertex linear RGB from a PLY file, or None if it has none (or is not a PLY).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A mesh file (only ``.ply`` files carry colours here).
+
+    Returns
+    -------
+    (n, 3) float32 NumPy array or None
+        ``albedo_r albedo_g albedo_b`` if present (written by :func:`write_ply`),
+        else ``red green blue`` decoded from sRGB (display colours: integers
+        over their type's maximum, floats taken as in [0, 1]).
+
+    Raises
+    ------
+    ValueError
+        If the PLY file cannot be parsed.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        return None
+    vertex = read_ply(path, "read_vertex_colors").get("vertex", {})
+    if all(c in vertex for c in _ALBEDO):
+        return np.stack([np.asarray(vertex[c], dtype=np.float32) for c in _ALBEDO], axis=1)
+    if not all(c in vertex for c in ("red", "green", "blue")):
+        return None
+    rgb = np.stack([np.asarray(vertex[c]) for c in ("red", "green", "blue")], axis=1)
+    if np.issubdtype(rgb.dtype, np.integer):
+        return srgb_to_linear(rgb / float(np.iinfo(rgb.dtype).max))
+    return srgb_to_linear(rgb)

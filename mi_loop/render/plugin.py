@@ -6,8 +6,12 @@ After :func:`register` (called by :func:`mi_loop.set_variant`), scenes can say::
         <string name="filename" value="blob.ply"/>   <!-- control mesh: PLY, OBJ or OFF -->
         <integer name="level" value="3"/>            <!-- 4**level triangles per control face -->
         <string name="creases" value="0 1, 1 2"/>    <!-- optional sharp edges, vertex pairs -->
+        <bsdf type="diffuse">                        <!-- optional: colours of a PLY control mesh -->
+            <texture type="mesh_attribute" name="reflectance">
+                <string name="name" value="vertex_color"/>
+            </texture>
+        </bsdf>
         <transform name="to_world"> ... </transform> <!-- optional, applied to the control points -->
-        <bsdf type="diffuse"/>
     </shape>
 
 The shape is a triangle mesh (a Python subclass of ``mi.Mesh``) whose vertices
@@ -16,6 +20,16 @@ control face and whose vertex normals are the exact limit normals.
 ``mi.traverse`` exposes ``control_points``, a differentiable flat ``mi.Float``
 of length ``3 n`` (xyz interleaved, world space); updating it recomputes the
 mesh through the cached :class:`mi_loop.LimitOperator`, with gradients.
+
+Appearance: a shape built with per-control-vertex RGB (``create(..., albedo=)``,
+or a PLY control mesh with vertex colours, see :func:`mi_loop.io.write_ply`)
+carries them to the tessellation with the same limit operator, as the mesh
+attribute ``vertex_color`` (a smooth colour field, 3 numbers per control
+vertex; Loop limit weights are non-negative, so colours in [0, 1] stay there).
+``mi.traverse`` then also exposes ``control_albedo`` (flat ``mi.Float`` of
+length ``3 n``, differentiable), and a ``mesh_attribute`` texture named
+``vertex_color`` lets any BSDF use it (the default BSDF of :func:`create`
+with ``albedo`` does).
 
 Integrators for optimising the control points: gradients through silhouettes
 come only from ``direct_projective`` and ``prb_projective`` (``prb``,
@@ -35,7 +49,8 @@ import re
 
 import numpy as np
 
-__all__ = ["PLUGIN_NAME", "create", "mesh_arrays", "parse_crease_text", "plain_mesh", "register"]
+__all__ = ["COLOR_ATTRIBUTE", "PLUGIN_NAME", "albedo_bsdf", "create", "mesh_arrays", "parse_crease_text",
+           "plain_mesh", "register"]
 
 #: Name of the plugin in scene dictionaries and XML files.
 PLUGIN_NAME = "loop_subdiv"
@@ -84,6 +99,8 @@ def parse_crease_text(text: str) -> np.ndarray | None:
 
 # The one place that knows Mitsuba's mesh-buffer names (``mi.traverse`` keys of a mesh).
 _POSITIONS, _NORMALS, _FACES = "vertex_positions", "vertex_normals", "faces"
+#: The mesh attribute holding per-vertex colours (read by a ``mesh_attribute`` texture).
+COLOR_ATTRIBUTE = "vertex_color"
 
 
 def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,9 +180,12 @@ def _shape_class(variant: str):
             Control vertices and faces given directly instead of ``filename``.
         creases : None, (c, 2) int array or (E, sharpness), optional
             Crease edges given directly instead of the ``creases`` property.
+        albedo : (n, 3) float array, optional
+            Per-control-vertex linear RGB given directly (else the control
+            mesh file's vertex colours, if it has any).
         """
 
-        def __init__(self, props, control_mesh=None, creases=None):
+        def __init__(self, props, control_mesh=None, creases=None, albedo=None):
             level = props.get("level", 3)
             if not isinstance(level, int) or level < 0:
                 raise ValueError(f"loop_subdiv: expected an integer level >= 0, got {level!r}")
@@ -174,9 +194,13 @@ def _shape_class(variant: str):
             if control_mesh is None:
                 if "filename" not in props:
                     raise ValueError("loop_subdiv: missing the 'filename' property (control mesh PLY/OBJ/OFF)")
-                control_mesh = io.read_mesh(str(mi.file_resolver().resolve(props.get("filename"))))
+                path = str(mi.file_resolver().resolve(props.get("filename")))
+                control_mesh = io.read_mesh(path)
+                if albedo is None:
+                    albedo = io.read_vertex_colors(path)
             V, F = (np.asarray(a) for a in control_mesh)
             validate_mesh(V, F)
+            albedo = _check_albedo(albedo, len(V))
             if "to_world" in props:
                 T = np.asarray(props.get("to_world").matrix, dtype=np.float64)
                 V = V @ T[:3, :3].T + T[:3, 3]
@@ -187,7 +211,12 @@ def _shape_class(variant: str):
             self._n = len(V)
             self._operator = LimitOperator(F, len(V), face_ids, uv, creases=creases)
             self._x = mi.Float(V.astype(np.float32).ravel())
+            self._c = None
             self._update_geometry(faces=mi.UInt32(np.asarray(F_tess, dtype=np.uint32).ravel()))
+            if albedo is not None:
+                self._c = mi.Float(albedo.ravel())
+                self.add_attribute(COLOR_ATTRIBUTE, 3, [0.0] * (3 * len(uv)))
+                self._update_colors()
 
         @property
         def operator(self):
@@ -206,19 +235,38 @@ def _shape_class(variant: str):
             P, N = self._operator.positions_normals(self._x)
             _write_mesh_buffers(self, dr.ravel(P), dr.ravel(N), faces)
 
+        def _update_colors(self) -> None:
+            if dr.width(self._c) != 3 * self._n:
+                raise ValueError(f"loop_subdiv: control_albedo must hold 3 * {self._n} values, "
+                                 f"got {dr.width(self._c)}")
+            params = mi.traverse(self)
+            params[COLOR_ATTRIBUTE] = dr.ravel(self._operator.positions(self._c))
+            params.update()
+
+        @property
+        def has_albedo(self) -> bool:
+            """Whether the shape carries per-control-vertex colours (``control_albedo``)."""
+            return self._c is not None
+
         def traverse(self, cb):
             super().traverse(cb)
             cb.put("control_points", self._x,
                    mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
+            if self._c is not None:
+                cb.put("control_albedo", self._c, mi.ParamFlags.Differentiable)
 
         def parameters_changed(self, keys=()):
+            ours = {"control_points", "control_albedo"}
             if not keys or "control_points" in keys:
                 self._update_geometry()
-            else:
-                super().parameters_changed(keys)
+            if self._c is not None and (not keys or "control_albedo" in keys):
+                self._update_colors()
+            if keys and not set(keys) <= ours:
+                super().parameters_changed([k for k in keys if k not in ours])
 
         def to_string(self):
             return (f"LoopSubdivMesh[control_points={self._n}, level={self._level}, "
+                    f"albedo={'per control vertex' if self._c is not None else 'none'}, "
                     f"vertices={self.vertex_count()}, faces={self.face_count()}]")
 
     _CLASSES[variant] = LoopSubdivMesh
@@ -258,7 +306,7 @@ def _current_class(caller: str):
     return _shape_class(variant)
 
 
-def create(V, F, level: int = 3, creases=None, bsdf=None):
+def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None):
     """Build a ``loop_subdiv`` shape from control-mesh arrays (no file needed).
 
     Parameters
@@ -272,7 +320,11 @@ def create(V, F, level: int = 3, creases=None, bsdf=None):
     creases : None, (c, 2) int array or (E, sharpness), optional
         Sharp edges, as accepted by :class:`mi_loop.LimitOperator`.
     bsdf : mi.BSDF, optional
-        Surface material (Mitsuba's default diffuse if None).
+        Surface material (if None: :func:`albedo_bsdf` with ``albedo``, else
+        Mitsuba's default diffuse).
+    albedo : (n, 3) float NumPy array, optional
+        Per-control-vertex linear RGB, exposed as ``control_albedo`` and
+        carried to the mesh attribute :data:`COLOR_ATTRIBUTE`.
 
     Returns
     -------
@@ -291,9 +343,36 @@ def create(V, F, level: int = 3, creases=None, bsdf=None):
     cls = _current_class("create")
     props = mi.Properties(PLUGIN_NAME)
     props["level"] = int(level)
+    if bsdf is None and albedo is not None:
+        bsdf = mi.load_dict(albedo_bsdf())
     if bsdf is not None:
         props["bsdf"] = bsdf
-    return cls(props, control_mesh=(V, F), creases=creases)
+    return cls(props, control_mesh=(V, F), creases=creases, albedo=albedo)
+
+
+def albedo_bsdf() -> dict:
+    """Scene dictionary of a diffuse BSDF whose reflectance is the shape's :data:`COLOR_ATTRIBUTE`.
+
+    Returns
+    -------
+    dict
+        ``{"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}}``.
+    """
+    return {"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": COLOR_ATTRIBUTE}}
+
+
+def _check_albedo(albedo, n: int):
+    """Per-control-vertex colours as a (n, 3) float32 array in [0, 1], or None."""
+    if albedo is None:
+        return None
+    A = np.asarray(albedo, dtype=np.float32)
+    if A.shape != (n, 3):
+        raise ValueError(f"loop_subdiv: expected albedo of shape ({n}, 3) (one RGB per control vertex), "
+                         f"got shape {A.shape}")
+    if not np.isfinite(A).all() or A.min() < 0 or A.max() > 1:
+        bad = int(np.flatnonzero(~(np.isfinite(A) & (A >= 0) & (A <= 1)).all(axis=1))[0])
+        raise ValueError(f"loop_subdiv: expected albedo in [0, 1], got {A[bad].tolist()} at control vertex {bad}")
+    return A
 
 
 def plain_mesh(V, F, normals=None, bsdf=None):

@@ -185,8 +185,9 @@ def to_srgb(image) -> np.ndarray:
     (h, w, c) float32 NumPy array
         Gamma-encoded values in [0, 1], ready for :func:`mi_loop.io.write_png`.
     """
-    x = np.clip(np.nan_to_num(np.asarray(image, dtype=np.float32)), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+    from mi_loop.io.srgb import linear_to_srgb
+
+    return linear_to_srgb(np.asarray(image, dtype=np.float32))
 
 
 def render_limit_surface(V, F, *, level: int = 3, creases=None, resolution: int = 256,
