@@ -7,6 +7,8 @@ through it); it sits just above :mod:`mi_loop.mesh`.
   count of polygons split into triangles), :func:`write_ply`;
 - :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
 - :mod:`~mi_loop.io.points`: :func:`load_oriented_points` (point clouds, or meshes sampled);
+- :mod:`~mi_loop.io.capture`: calibrated multi-view captures, NeRF / Blender ``transforms.json``
+  (:func:`read_capture`, :func:`write_capture`; :class:`Camera`, :class:`View`, :class:`Capture`);
 - :mod:`~mi_loop.io.formats`, :mod:`~mi_loop.io.ply`: the file formats, as polygon lists;
 - :mod:`~mi_loop.io.srgb`: the sRGB curve (:func:`srgb_to_linear`, :func:`linear_to_srgb`);
 - :mod:`~mi_loop.io.files`: atomic writes (:func:`write_png`, :func:`write_text`),
@@ -17,6 +19,14 @@ Every rejected file raises :class:`ValueError` reading ``function(): expected
 """
 from __future__ import annotations
 
+from mi_loop.io.capture import (
+    IMAGE_SUFFIXES,
+    Camera,
+    Capture,
+    View,
+    read_capture,
+    write_capture,
+)
 from mi_loop.io.files import (
     atomic_open,
     ensure_writable_dir,
@@ -40,14 +50,19 @@ from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
 __all__ = [
     "FRAME_SUFFIXES",
+    "IMAGE_SUFFIXES",
     "MESH_SUFFIXES",
     "POINT_SUFFIXES",
+    "Camera",
+    "Capture",
     "ControlMesh",
+    "View",
     "atomic_open",
     "ensure_writable_dir",
     "first_missing_ancestor",
     "linear_to_srgb",
     "load_oriented_points",
+    "read_capture",
     "read_control_mesh",
     "read_frames",
     "read_mesh",
@@ -55,6 +70,7 @@ __all__ = [
     "remove_if_empty",
     "srgb_to_linear",
     "staged_outputs",
+    "write_capture",
     "write_ply",
     "write_png",
     "write_text",

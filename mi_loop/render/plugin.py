@@ -375,7 +375,7 @@ def _check_albedo(albedo, n: int):
     return A
 
 
-def plain_mesh(V, F, normals=None, bsdf=None):
+def plain_mesh(V, F, normals=None, bsdf=None, colors=None):
     """Build an ordinary Mitsuba triangle mesh from arrays (e.g. a target to compare with).
 
     Parameters
@@ -388,6 +388,8 @@ def plain_mesh(V, F, normals=None, bsdf=None):
         Vertex normals (flat shading without them).
     bsdf : mi.BSDF, optional
         Surface material.
+    colors : (k, 3) float NumPy array, optional
+        Per-vertex linear RGB, as the attribute :data:`COLOR_ATTRIBUTE` (see :func:`albedo_bsdf`).
 
     Returns
     -------
@@ -407,4 +409,9 @@ def plain_mesh(V, F, normals=None, bsdf=None):
     if normals is not None:
         params[_NORMALS] = mi.Float(np.asarray(normals, dtype=np.float32).ravel())
     params.update()
+    if colors is not None:
+        colors = np.asarray(colors, dtype=np.float32)
+        if colors.shape != V.shape:
+            raise ValueError(f"plain_mesh(): expected colors of shape {V.shape}, got shape {colors.shape}")
+        mesh.add_attribute(COLOR_ATTRIBUTE, 3, colors.ravel().tolist())
     return mesh

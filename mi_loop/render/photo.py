@@ -1,0 +1,227 @@
+"""The image loss of a ``loop_subdiv`` shape against calibrated photos (shape and albedo gradients).
+
+:class:`PhotoRenderer` puts the limit surface of a control mesh, with a
+per-control-vertex albedo, in a scene with one Mitsuba sensor per photo
+(:func:`mi_loop.render.cameras.sensor_dict`, the NeRF camera exactly) and the
+capture's emitters, and compares each render with its photo: mean L1 over the
+pixels of linear RGB. Photos show their own background; the renders show the
+emitters (the environment). So each target is the photo composited over a
+render of the emitters alone, ``T = mask * photo + (1 - mask) * B``: inside the
+mask the shading is compared, across its border the silhouette. Gradients
+flow to the control points (through silhouettes and shading, with
+``direct_projective`` or ``prb_projective``) and to the albedo.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mi_loop.ad.threads import one_thread
+from mi_loop.render.plugin import albedo_bsdf, create, plain_mesh
+
+__all__ = ["INTEGRATORS", "PhotoRenderer", "background", "render_views"]
+
+#: Integrators whose gradients include silhouettes (see :mod:`mi_loop.render.plugin`).
+INTEGRATORS = ("direct_projective", "prb_projective")
+
+
+def _scene(shape, cameras, emitters, integrator, spp, alpha: bool = False):
+    import mitsuba as mi
+
+    from mi_loop.render.cameras import sensor_dict
+
+    desc = {"type": "scene"}
+    if integrator is not None:
+        desc["integrator"] = {"type": integrator, "sppi": 0} if integrator in INTEGRATORS else {"type": integrator}
+    if shape is not None:
+        desc["shape"] = shape
+    for j, emitter in enumerate(emitters):
+        desc[f"emitter_{j}"] = emitter
+    for k, camera in enumerate(cameras):
+        sensor = sensor_dict(camera, spp=spp)
+        if alpha:
+            sensor["film"]["pixel_format"] = "rgba"
+        desc[f"sensor_{k:03d}"] = sensor
+    return mi.load_dict(desc)
+
+
+def background(cameras, emitters, *, spp: int = 16, seed: int = 0) -> list:
+    """Render what each camera sees of the emitters alone (the photos' stand-in background).
+
+    Parameters
+    ----------
+    cameras : list of mi_loop.io.capture.Camera
+        The cameras.
+    emitters : list of dict or mi.Emitter
+        The capture's lighting.
+    spp : int
+        Samples per pixel (an environment seen directly needs few).
+    seed : int
+        Sampler seed.
+
+    Returns
+    -------
+    list of (h, w, 3) float32 NumPy arrays
+        Linear RGB per camera.
+    """
+    import mitsuba as mi
+
+    scene = _scene(None, cameras, emitters, "direct", spp)
+    return [np.asarray(mi.render(scene, spp=spp, seed=seed + k, sensor=k), dtype=np.float32)[..., :3]
+            for k in range(len(cameras))]
+
+
+def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int = 64, seed: int = 0) -> list:
+    """Photograph a triangle mesh with calibrated cameras: synthetic captures for tests and benchmarks.
+
+    Parameters
+    ----------
+    V : (k, 3) float NumPy array
+        Vertex positions.
+    F : (t, 3) int NumPy array
+        Triangles.
+    cameras : list of mi_loop.io.capture.Camera
+        The cameras.
+    emitters : list of dict or mi.Emitter
+        The lighting.
+    colors : (k, 3) float NumPy array, optional
+        Per-vertex linear albedo (default: grey 0.5) of a diffuse BSDF.
+    normals : (k, 3) float NumPy array, optional
+        Vertex normals (smooth shading); flat without.
+    spp : int
+        Samples per pixel (``direct`` integrator).
+    seed : int
+        Seed of the first view's sampler (view ``k`` uses ``seed + k``).
+
+    Returns
+    -------
+    list of mi_loop.io.capture.View
+        Linear RGB clipped to [0, 1] (as an 8-bit camera saturates; Monte Carlo
+        noise can exceed a white albedo) and the render's alpha as the mask,
+        named ``view_000`` ...
+    """
+    import mitsuba as mi
+
+    from mi_loop.io.capture import View
+
+    if colors is None:
+        bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    else:
+        bsdf = albedo_bsdf()
+    mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(bsdf), colors=colors)
+    scene = _scene(mesh, cameras, emitters, "direct", spp, alpha=True)
+    views = []
+    for k, camera in enumerate(cameras):
+        image = np.asarray(mi.render(scene, spp=spp, seed=seed + k, sensor=k), dtype=np.float32)
+        views.append(View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
+                          name=f"view_{k:03d}"))
+    return views
+
+
+class PhotoRenderer:
+    """Differentiable renders of a Loop surface with albedo, against photos.
+
+    Parameters
+    ----------
+    V : (n, 3) float NumPy array
+        Control points.
+    F : (m, 3) int NumPy array
+        Control faces.
+    albedo : (n, 3) float NumPy array
+        Per-control-vertex linear RGB in [0, 1].
+    views : sequence of mi_loop.io.capture.View
+        The photos and their cameras, at the resolution to render.
+    emitters : list of dict or mi.Emitter
+        The capture's lighting.
+    level : int
+        Tessellation level of the rendered limit surface.
+    spp : int
+        Samples per pixel of the differentiable renders.
+    integrator : {'direct_projective', 'prb_projective'}
+        Mitsuba integrator (``sppi`` 0).
+    deterministic : bool
+        Run each reverse render on one LLVM thread (see :mod:`mi_loop.ad.threads`).
+
+    Attributes
+    ----------
+    targets : list of mi.TensorXf (h, w, 3)
+        Photos composited over the emitters' background (module docstring).
+    """
+
+    def __init__(self, V, F, albedo, views, emitters, *, level: int, spp: int,
+                 integrator: str = "direct_projective", deterministic: bool = False):
+        import mitsuba as mi
+
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"PhotoRenderer(): expected integrator to be one of {INTEGRATORS}, got {integrator!r}")
+        self.views, self.spp, self.deterministic = list(views), int(spp), bool(deterministic)
+        cameras = [v.camera for v in self.views]
+        self.shape = create(V, F, level=level, albedo=albedo, bsdf=mi.load_dict(albedo_bsdf()))
+        self.scene = _scene(self.shape, cameras, emitters, integrator, spp)
+        self.params = mi.traverse(self.scene)
+        self.keys = {name: next(k for k in self.params.keys() if k.endswith(name))
+                     for name in ("control_points", "control_albedo")}
+        self.params.keep(list(self.keys.values()))
+        backgrounds = background(cameras, emitters)
+        self.targets = []
+        for view, B in zip(self.views, backgrounds):
+            a = view.mask[..., None]
+            self.targets.append(mi.TensorXf((a * view.rgb + (1.0 - a) * B).astype(np.float32)))
+
+    def _set(self, x, c) -> None:
+        self.params[self.keys["control_points"]] = x
+        self.params[self.keys["control_albedo"]] = c
+        self.params.update()
+
+    def render(self, x, c, k: int, *, seed: int, spp: int | None = None):
+        """Render view ``k`` with control points ``x`` and albedo ``c`` (flat ``mi.Float``, 3n each).
+
+        Parameters
+        ----------
+        x, c : mi.Float (3n)
+            Control points and albedo, xyz / rgb interleaved (gradients kept).
+        k : int
+            View.
+        seed : int
+            Sampler seed.
+        spp : int, optional
+            Samples per pixel (default: the renderer's).
+
+        Returns
+        -------
+        mi.TensorXf (h, w, 3)
+        """
+        import mitsuba as mi
+
+        self._set(x, c)
+        image = mi.render(self.scene, self.params, spp=int(spp or self.spp), seed=int(seed), sensor=int(k))
+        return image[..., :3] if image.shape[2] > 3 else image
+
+    def view_loss(self, x, c, k: int, *, seed: int):
+        """Mean L1 between the render of view ``k`` and its target; ``mi.Float (1)``, differentiable."""
+        import drjit as dr
+
+        return dr.mean(dr.abs(self.render(x, c, k, seed=seed) - self.targets[k]).array)
+
+    def backward(self, x, c, view_ids, *, seed: int) -> list:
+        """Accumulate the gradients of ``mean_k loss_k`` into ``x`` and ``c``; return each ``loss_k``.
+
+        One reverse pass per view (Mitsuba releases the geometry's graph in
+        each reverse render; see :meth:`mi_loop.render.multiview.Renderer.backward`).
+        """
+        import drjit as dr
+
+        losses = []
+        for k in view_ids:
+            loss = self.view_loss(x, c, k, seed=seed * 1009 + int(k))
+            losses.append(float(loss[0]))
+            with one_thread(self.deterministic):
+                dr.backward(loss / len(view_ids))
+        return losses
+
+    def losses(self, x, c, *, seed: int, spp: int | None = None) -> list:
+        """Loss of every view (values only)."""
+        import drjit as dr
+
+        with dr.suspend_grad():
+            return [float(dr.mean(dr.abs(self.render(x, c, k, seed=seed + k, spp=spp) - self.targets[k]).array)[0])
+                    for k in range(len(self.views))]
