@@ -17,6 +17,11 @@ Subcommands
     + multi-view differentiable rendering); writes ``control/``, ``limit/``,
     ``state/``, ``sequence.json``, ``metrics.csv``, ``drift.png``, ``strip.png``;
     ``--resume`` continues an interrupted run bit for bit.
+``mi-loop fit-images transforms.json -o OUTDIR [--vertices N] [--init sphere|hull|MESH] ...``
+    Fit a Loop control mesh and its per-vertex albedo to calibrated photos
+    (silhouettes and shading through Mitsuba's differentiable renderer,
+    coarse to fine); writes ``control.ply``, ``limit.ply``, ``report.json``,
+    ``progress.png``, ``loss.png``.
 ``mi-loop compare FITTED TARGET``
     Two-sided distances and the Neural Parametric Surfaces metrics between
     a control mesh's limit surface (or any mesh) and a target file.
@@ -40,7 +45,7 @@ from mi_loop import datasets, io
 from mi_loop.app.parser import build_parser, flag
 from mi_loop.app.progress import Reporter
 from mi_loop.errors import FitError, expected
-from mi_loop.fitting.options import FitOptions, OptionError, SequenceOptions
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, OptionError, SequenceOptions
 
 __all__ = ["main"]
 
@@ -65,6 +70,13 @@ def sequence_options(args) -> SequenceOptions:
         values["views_per_iteration"] = min(SequenceOptions.views_per_iteration, args.views)
     values.update(geometric=not args.image_only, image=not args.no_image)
     return _options(SequenceOptions, values, "fit-sequence")
+
+
+def image_options(args) -> ImageFitOptions:
+    """The :class:`ImageFitOptions` of ``mi-loop fit-images``'s arguments (checked)."""
+    values = {f.name: getattr(args, f.name) for f in fields(ImageFitOptions) if hasattr(args, f.name)}
+    values["init"] = args.init if args.init in ("sphere", "hull") else "sphere"
+    return _options(ImageFitOptions, values, "fit-images")
 
 
 def check_variant(name: str, command: str) -> None:
@@ -144,6 +156,21 @@ def _fit_sequence(args, log) -> None:
                      variant=args.variant, log=log)
 
 
+def _fit_images(args, log) -> None:
+    from pathlib import Path
+
+    from mi_loop.app import images_job
+
+    options = image_options(args)
+    init = None if args.init in ("sphere", "hull") else Path(args.init)
+    if init is not None and not init.is_file():
+        raise ValueError(expected("fit-images --init", "sphere, hull or an existing control mesh file",
+                                  f"'{args.init}'"))
+    check_variant(args.variant, "fit-images")
+    images_job.run(args.capture, args.output, options, init=init, emitters=args.emitters, variant=args.variant,
+                   log=log)
+
+
 def _compare(args, log) -> None:
     import json
 
@@ -165,7 +192,7 @@ def _control(args, log) -> None:
 
 
 COMMANDS = {"demo": _demo, "render": _render_file, "control": _control, "fit": _fit, "compare": _compare,
-            "fit-sequence": _fit_sequence}
+            "fit-sequence": _fit_sequence, "fit-images": _fit_images}
 
 
 def _traceback_wanted(args) -> bool:

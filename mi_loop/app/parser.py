@@ -12,7 +12,7 @@ from pathlib import Path
 
 from mi_loop import datasets
 from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
-from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, SequenceOptions
+from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, ImageFitOptions, SequenceOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
 __all__ = ["FLAGS", "build_parser", "flag"]
@@ -200,6 +200,54 @@ def _sequence_parser(sub, common) -> None:
     _variant(p)
 
 
+def _images_parser(sub, common) -> None:
+    from mi_loop.render.photo import INTEGRATORS
+
+    o = ImageFitOptions
+    p = sub.add_parser("fit-images", parents=[common],
+                       help="fit a Loop surface and its albedo to calibrated photos (transforms.json)",
+                       description="Shape and per-control-vertex albedo from photos with known cameras "
+                                   "(NeRF/Blender transforms.json) through Mitsuba's differentiable "
+                                   "renderer: silhouettes (the masks: alpha or mask_path) and shading, "
+                                   "coarse to fine by exact Loop refinement.")
+    p.add_argument("capture", type=Path, help="transforms.json of the photos")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    p.add_argument("--vertices", dest="n_vertices", type=int, metavar="N", default=o.n_vertices,
+                   help="most control vertices after the refinements (default %(default)s)")
+    p.add_argument("--init", default=o.init, metavar="sphere|hull|MESH",
+                   help="start shape: an icosphere in the visual hull's box (sphere, default), a template of "
+                        "the visual hull of the masks (hull), or a control mesh file")
+    p.add_argument("--refinements", type=int, default=o.refinements,
+                   help="exact Loop refinements of the control mesh, coarse to fine (default %(default)s)")
+    p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,
+                   help="longest image side at the finest stage (default: the photos' own; coarser "
+                        "stages halve it)")
+    p.add_argument("--spp", type=int, default=o.spp, help="samples per pixel of the renders (default %(default)s)")
+    p.add_argument("--iterations", type=int, metavar="N", default=o.iterations,
+                   help="most iterations, all stages together (default %(default)s)")
+    p.add_argument("--views-per-iteration", type=int, metavar="K", default=o.views_per_iteration,
+                   help="photos rendered per iteration (default %(default)s)")
+    p.add_argument("--emitters", type=Path, metavar="F",
+                   help="Mitsuba XML file holding only the capture's emitters (default: a uniform white "
+                        "environment of radiance 1)")
+    p.add_argument("--lr", type=float, default=o.lr,
+                   help="step size relative to the visual hull's box diagonal (default %(default)s)")
+    p.add_argument("--lam", type=float, default=o.lam,
+                   help="lambda of the (I + lambda L) smooth parameterisation (default %(default)s; 0: plain)")
+    p.add_argument("--smooth", type=float, default=o.smooth,
+                   help="weight of the cage's Laplacian term (default %(default)s; 0: off)")
+    p.add_argument("--albedo", type=float, default=o.albedo, help="start albedo, grey (default %(default)s)")
+    p.add_argument("--fixed-albedo", dest="fit_albedo", action="store_false",
+                   help="keep the albedo at --albedo instead of estimating it")
+    p.add_argument("--integrator", choices=INTEGRATORS, default=o.integrator,
+                   help="differentiable integrator (default %(default)s)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="bit-reproducible runs: the reverse renders run on one thread (slower)")
+    p.add_argument("--seed", type=int, default=o.seed,
+                   help="random seed of the view order and the renders (default 0)")
+    _variant(p)
+
+
 def _compare_epilog() -> str:
     lines = [(f"FITTED with more than {CONTROL_VERTEX_LIMIT:,} vertices is measured as a plain mesh unless "
               f"--control is given; otherwise as a control mesh (its limit surface at level {LEVEL})."), ""]
@@ -244,6 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _fit_parser(sub, common)
     _sequence_parser(sub, common)
+    _images_parser(sub, common)
     _compare_parser(sub, common)
 
     control = sub.add_parser("control", parents=[common], help="write a procedural control mesh")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LOSS_TERMS", "drift_figure", "figure_pixels", "loss_figure", "loss_plot", "plain",
+__all__ = ["LOSS_TERMS", "agg_figure", "drift_figure", "figure_pixels", "loss_figure", "loss_plot", "plain",
            "side_by_side", "splat_mesh", "strip_figure"]
 
 #: History keys of :attr:`mi_loop.fitting.static.FitResult.history` drawn by :func:`loss_figure`, and labels.
@@ -49,8 +49,18 @@ def plain(x):
     return x
 
 
-def _figure(width: float, height: float):
-    """A Matplotlib ``Figure`` on an Agg canvas (no pyplot, no backend switch)."""
+def agg_figure(width: float, height: float):
+    """Return a Matplotlib ``Figure`` on an Agg canvas (no pyplot, no backend switch).
+
+    Parameters
+    ----------
+    width, height : float
+        Size in inches (100 dpi).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -96,7 +106,7 @@ def loss_figure(history: dict, title: str = "energy per iteration"):
     -------
     matplotlib.figure.Figure
     """
-    fig = _figure(6.4, 4.0)
+    fig = agg_figure(6.4, 4.0)
     ax = fig.add_subplot()
     it = np.arange(1, len(history["total"]) + 1)
     total = np.asarray(history["total"])
@@ -151,7 +161,7 @@ def drift_figure(frames, mean, rms):
     """
     from matplotlib.ticker import MaxNLocator
 
-    fig = _figure(6.4, 3.6)
+    fig = agg_figure(6.4, 3.6)
     ax = fig.add_subplot()
     ax.plot(frames, mean, "o-", label="mean")
     ax.plot(frames, rms, "s-", label="RMS")
@@ -177,7 +187,7 @@ def strip_figure(strips):
     -------
     matplotlib.figure.Figure
     """
-    fig = _figure(4.0, 2.1 * len(strips))
+    fig = agg_figure(4.0, 2.1 * len(strips))
     axes = fig.subplots(len(strips), 1, squeeze=False)
     for ax, (t, mean, image) in zip(axes[:, 0], strips):
         ax.imshow(image)

@@ -2,7 +2,9 @@
 
 - :class:`FitOptions`: the static fit (:func:`mi_loop.fitting.static.fit`, ``mi-loop fit``);
 - :class:`SequenceOptions`: the frame-by-frame fit (:func:`mi_loop.fitting.sequence.fit_frame`,
-  ``mi-loop fit-sequence``).
+  ``mi-loop fit-sequence``);
+- :class:`ImageFitOptions`: shape and albedo from photos (:func:`mi_loop.fitting.images.fit_images`,
+  ``mi-loop fit-images``).
 
 Every default lives here once: :func:`~mi_loop.fitting.static.fit`'s keyword
 arguments and the command line's defaults are read from these classes. A
@@ -22,10 +24,12 @@ from mi_loop.render.multiview import IMAGE_MODES, LOSSES
 
 __all__ = [
     "COVER",
+    "IMAGE_INITS",
     "N_VERTICES",
     "SAMPLES",
     "SAMPLE_MODES",
     "FitOptions",
+    "ImageFitOptions",
     "OptionError",
     "SequenceOptions",
 ]
@@ -271,3 +275,93 @@ class SequenceOptions:
         return RigOptions(views=self.views, resolution=self.resolution, spp=self.spp,
                           target_spp=self.target_spp, level=self.level, loss=self.loss, mode=self.mode,
                           deterministic=self.deterministic)
+
+
+#: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
+IMAGE_INITS = ("sphere", "hull")
+
+
+@dataclass
+class ImageFitOptions:
+    """Parameters of :func:`mi_loop.fitting.images.fit_images` and ``mi-loop fit-images``.
+
+    Attributes
+    ----------
+    n_vertices : int
+        Most control vertices: the start mesh is chosen so that ``refinements``
+        exact Loop steps stay at or below it (>= 4).
+    init : {'sphere', 'hull'}
+        Start shape: an icosphere in the visual hull's box, or a template of
+        the visual hull of the masks (ignored when a start mesh is given).
+    refinements : int
+        Exact Loop refinements of the control mesh (stages - 1), >= 0.
+    resolution : int or None
+        Longest image side at the finest stage (the photos' own if None or
+        larger); each coarser stage halves it.
+    spp : int
+        Samples per pixel of the differentiable renders.
+    iterations : int
+        Most iterations in all (split evenly between the stages; a stage ends
+        earlier when its loss stalls).
+    views_per_iteration : int
+        Photos rendered per iteration (a seeded sweep through all of them).
+    lr : float
+        Step of the smooth parameterisation, relative to the hull's box diagonal.
+    albedo_lr : float
+        Adam step of the albedo.
+    lam : float
+        ``lambda`` of the ``(I + lambda L)`` parameterisation (:mod:`mi_loop.fitting.largesteps`).
+    smooth : float
+        Weight of the cage's uniform-Laplacian term ``|L x|^2 / (n d^2)`` (``d`` the
+        box diagonal), which keeps control vertices spread; 0: off.
+    albedo : float
+        Start albedo (grey) in [0, 1].
+    fit_albedo : bool
+        Estimate the albedo (False: keep it at ``albedo``).
+    stall : float
+        Relative loss decrease over one sweep of the photos below which a
+        stage ends early.
+    triangles : int
+        Rendered triangles per stage, roughly (sets the tessellation level).
+    integrator : {'direct_projective', 'prb_projective'}
+    seed : int
+        Seed of the view order and of the renders.
+    deterministic : bool
+        Bit-reproducible runs: reverse renders on one thread (slower).
+    """
+
+    n_vertices: int = 2562
+    init: str = "sphere"
+    refinements: int = 2
+    resolution: int | None = None
+    spp: int = 8
+    iterations: int = 600
+    views_per_iteration: int = 2
+    lr: float = 0.01
+    albedo_lr: float = 0.02
+    lam: float = 20.0
+    smooth: float = 0.05
+    albedo: float = 0.5
+    fit_albedo: bool = True
+    stall: float = 0.005
+    triangles: int = 20_000
+    integrator: str = "direct_projective"
+    seed: int = 0
+    deterministic: bool = False
+
+    def __post_init__(self):
+        from mi_loop.render.photo import INTEGRATORS
+
+        _check(self, {"n_vertices": N_VERTICES_RULE,
+                      "init": (lambda v: v in IMAGE_INITS, f"one of {IMAGE_INITS}"),
+                      "refinements": (lambda v: _is_int(v) and 0 <= v <= 4, "an integer in 0..4"),
+                      "resolution": (lambda v: v is None or (_is_int(v) and v >= 16),
+                                     "an integer >= 16 (or None: the photos' size)"),
+                      "spp": COUNT, "iterations": COUNT, "views_per_iteration": COUNT,
+                      "lr": (_positive_real, "a finite number > 0"),
+                      "albedo_lr": (_positive_real, "a finite number > 0"),
+                      "lam": WEIGHT, "smooth": WEIGHT,
+                      "albedo": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
+                      "fit_albedo": FLAG, "stall": WEIGHT, "triangles": COUNT,
+                      "integrator": (lambda v: v in INTEGRATORS, f"one of {INTEGRATORS}"),
+                      "seed": SEED, "deterministic": FLAG})

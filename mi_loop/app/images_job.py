@@ -1,0 +1,164 @@
+"""The ``mi-loop fit-images`` job: read a capture, fit shape and albedo, write OUTDIR.
+
+Outputs (written together at the end, nothing half-written):
+
+- ``control.ply``: the control mesh with its albedo as vertex colours (8-bit
+  sRGB ``red green blue`` and float linear ``albedo_r albedo_g albedo_b``);
+  a ``loop_subdiv`` shape reads both back;
+- ``limit.ply``: the limit surface at level 3 with exact limit normals and colours;
+- ``report.json``: ``input``, ``params`` (the options), ``lighting``, ``stages``
+  (control vertices, level, image size, iterations, time), ``views`` (each
+  photo's loss at the start and at the end, at the finest resolution, mean
+  L1 over linear RGB), ``timings_s``, ``parameters`` (optimised scalars),
+  ``machine``, ``variant``;
+- ``progress.png``: four photos (composited over the lighting) and the
+  renders of the start and of the fit from the same cameras;
+- ``loss.png``: the image loss per iteration, stages marked.
+"""
+from __future__ import annotations
+
+import json
+import platform
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from mi_loop import io
+from mi_loop.fitting.options import ImageFitOptions
+from mi_loop.render.variant import DEFAULT_VARIANT
+
+__all__ = ["OUTPUTS", "run"]
+
+#: The files ``mi-loop fit-images`` writes into OUTDIR, in this order.
+OUTPUTS = ("control.ply", "limit.ply", "report.json", "progress.png", "loss.png")
+
+#: Views shown in ``progress.png``.
+SHOWN = 4
+
+
+def _start(init: str | Path | None, log):
+    """A start mesh from ``--init MESH`` (arrays), or None for 'sphere'/'hull'."""
+    if init is None or str(init) in ("sphere", "hull"):
+        return None
+    from mi_loop.mesh.topology import validate_mesh
+
+    mesh = io.read_control_mesh(init)
+    if mesh.n_split:
+        log.warning(f"--init '{init}': {mesh.n_split} polygons split into triangles")
+    validate_mesh(mesh.V, mesh.F)
+    return mesh.V, mesh.F
+
+
+def _finest(views, options: ImageFitOptions):
+    longest = max(max(v.camera.width, v.camera.height) for v in views)
+    scale = 1.0 if options.resolution is None else min(1.0, options.resolution / longest)
+    return [v.resized(scale) if scale < 1 else v for v in views]
+
+
+def _evaluate(result, views, emitters, options, log):
+    """Per-view losses and renders of the start and of the fit at the finest resolution."""
+    import mitsuba as mi
+
+    from mi_loop.fitting.images import stage_plan
+    from mi_loop.render.photo import PhotoRenderer
+
+    finest = _finest(views, options)
+    shown = np.linspace(0, len(finest) - 1, min(SHOWN, len(finest))).round().astype(int).tolist()
+    out = {}
+    for name, (V, F, c) in {"start": (result.V0, result.F0, result.albedo0),
+                            "end": (result.V, result.F, result.albedo)}.items():
+        level = stage_plan(ImageFitOptions(refinements=0, triangles=options.triangles), (1, 1), len(F))[0]["level"]
+        r = PhotoRenderer(V, F, c, finest, emitters, level=level, spp=options.spp, integrator=options.integrator)
+        x, a = mi.Float(V.ravel().astype(np.float32)), mi.Float(c.ravel().astype(np.float32))
+        out[name] = {"losses": r.losses(x, a, seed=99, spp=4 * options.spp),
+                     "images": [np.asarray(r.render(x, a, k, seed=7, spp=4 * options.spp)) for k in shown]}
+        out["targets"] = [np.asarray(r.targets[k]) for k in shown]
+    log.say(f"mean L1 over the {len(finest)} photos: {np.mean(out['start']['losses']):.4f} at the start, "
+            f"{np.mean(out['end']['losses']):.4f} at the end")
+    return out, shown
+
+
+def _limit(V, F, albedo):
+    from mi_loop.subdiv.limit import limit_matrix
+    from mi_loop.subdiv.masks import limit_mesh
+    from mi_loop.subdiv.tessellation import tessellate
+
+    P, F_lim, N = limit_mesh(V, F, 3)
+    face_ids, uv, _ = tessellate(F, 3)
+    return P, F_lim, N, np.clip(limit_matrix(F, len(V), face_ids, uv) @ albedo, 0.0, 1.0)
+
+
+def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emitters: Path | None = None,
+        variant: str = DEFAULT_VARIANT, log) -> list:
+    """Run ``mi-loop fit-images``: fit a Loop surface and its albedo to a capture, write OUTDIR.
+
+    Parameters
+    ----------
+    capture : pathlib.Path
+        ``transforms.json`` of the photos.
+    output : pathlib.Path
+        OUTDIR (created).
+    options : ImageFitOptions
+    init : pathlib.Path, optional
+        Start control mesh (instead of ``options.init``).
+    emitters : pathlib.Path, optional
+        Mitsuba XML file of the capture's lighting (default: white environment).
+    variant : str
+        Mitsuba variant.
+    log : mi_loop.app.progress.Reporter
+
+    Returns
+    -------
+    list of pathlib.Path
+        The written files (:data:`OUTPUTS` in OUTDIR).
+    """
+    from mi_loop.app.image_report import image_loss_plot, progress_grid
+    from mi_loop.app.report import plain
+    from mi_loop.fitting.images import fit_images
+    from mi_loop.io.capture import read_capture
+    from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
+    from mi_loop.render.variant import set_variant
+
+    t0 = time.perf_counter()
+    shot = read_capture(capture)
+    log.say(f"{capture}: {len(shot.views)} photos, {shot.views[0].camera.width}x{shot.views[0].camera.height}")
+    start = _start(init, log)
+    created = io.first_missing_ancestor(output)
+    out = io.ensure_writable_dir(output)
+    try:
+        set_variant(variant)
+        lights = read_emitters(emitters) if emitters is not None else [dict(e) for e in DEFAULT_EMITTERS]
+        timings = {"read": time.perf_counter() - t0}
+        t = time.perf_counter()
+        with log.bar("fitting") as update:
+            result = fit_images(shot.views, lights, options, start=start,
+                                progress=lambda i, n, k, loss: update(i, n, f"stage {k} L1={loss:.4f}"))
+        timings["fit"] = time.perf_counter() - t
+        stages = ", ".join(f"{s['n_vertices']} vertices at {s['width']}x{s['height']}" for s in result.stages)
+        log.say(f"fitted {len(result.V)} control vertices ({stages}) in {timings['fit']:.1f} s")
+        t = time.perf_counter()
+        evaluation, shown = _evaluate(result, shot.views, lights, options, log)
+        limit = _limit(result.V, result.F, result.albedo)
+        grid, loss = progress_grid(evaluation, shown), image_loss_plot(result.history)
+        timings["report"] = time.perf_counter() - t
+        report = {"input": str(capture), "params": asdict(options), "init": str(init or options.init),
+                  "lighting": str(emitters) if emitters is not None else "constant environment, radiance 1",
+                  "stages": result.stages, "parameters": {"control_points": result.V.size,
+                                                          "albedo": result.albedo.size if options.fit_albedo else 0},
+                  "views": [{"name": v.name, "loss_start": s, "loss_end": e} for v, s, e in
+                            zip(shot.views, evaluation["start"]["losses"], evaluation["end"]["losses"])],
+                  "timings_s": timings, "machine": platform.node(), "variant": variant}
+        with io.staged_outputs(out) as stage:
+            io.write_ply(stage / "control.ply", result.V, result.F, colors=np.clip(result.albedo, 0, 1))
+            io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2], colors=limit[3])
+            io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
+            io.write_png(stage / "progress.png", grid)
+            io.write_png(stage / "loss.png", loss)
+    except BaseException:
+        io.remove_if_empty(created, out)
+        raise
+    paths = [out / name for name in OUTPUTS]
+    log.wrote(*paths)
+    return paths

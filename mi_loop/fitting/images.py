@@ -1,0 +1,269 @@
+"""Shape and albedo of a Loop surface from calibrated photos, coarse to fine.
+
+:func:`fit_images` fits control points ``x`` and a per-control-vertex albedo
+``c`` to photos with known cameras and lighting, minimising the mean L1 image
+loss of :class:`~mi_loop.render.photo.PhotoRenderer` (silhouettes and shading)
+plus a small uniform-Laplacian term that keeps the cage spread:
+
+``E(x, c) = mean_k |R_k(x, c) - T_k|_1 + smooth |L x|^2 / (n d^2)``.
+
+Stages: the start mesh (an icosphere or a template of the visual hull) is
+refined ``refinements`` times by one exact Loop step (``x <- S x``, ``c <- S c``:
+the same limit surface and colour field, with four times the control
+faces), when the loss stalls or the stage's share of the iterations is
+spent; the images are rendered at half the resolution per coarser stage.
+Each step is a "large step" (:mod:`mi_loop.fitting.largesteps`): the
+gradient is smoothed by ``(I + lambda L)^{-1}`` over the cage and applied by a
+uniform Adam. No file I/O here (see :mod:`mi_loop.app.images_job`).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from mi_loop.errors import FitError, fail
+from mi_loop.fitting.largesteps import AdamUniform, SmoothParameterisation
+from mi_loop.fitting.options import ImageFitOptions
+from mi_loop.mesh.geometry import edges
+
+__all__ = ["ImageFitResult", "fit_images", "start_mesh", "refine", "stage_plan"]
+
+
+@dataclass
+class ImageFitResult:
+    """What :func:`fit_images` found.
+
+    Attributes
+    ----------
+    V : (n, 3) float64 NumPy array
+        Control points (world units).
+    F : (m, 3) int64 NumPy array
+        Control faces.
+    albedo : (n, 3) float64 NumPy array
+        Per-control-vertex linear RGB.
+    V0, F0, albedo0 : NumPy arrays
+        The start mesh and albedo.
+    history : list of dict
+        Per iteration: ``stage``, ``loss`` (mean over its views), ``time`` (s since the start).
+    stages : list of dict
+        Per stage: ``n_vertices``, ``level``, ``width``, ``height``, ``iterations``,
+        ``stalled`` (ended on the stall rule), ``time_s``.
+    bbox : ((3,), (3,)) float64
+        The visual hull's box (sets the scale of the steps).
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    albedo: np.ndarray
+    V0: np.ndarray
+    F0: np.ndarray
+    albedo0: np.ndarray
+    history: list = field(default_factory=list)
+    stages: list = field(default_factory=list)
+    bbox: tuple = ()
+
+
+def refine(V, F, albedo=None):
+    """One exact Loop step of a control mesh (and of a per-vertex attribute).
+
+    Parameters
+    ----------
+    V : (n, 3) float NumPy array
+        Control points.
+    F : (m, 3) int NumPy array
+        Control faces.
+    albedo : (n, c) float NumPy array, optional
+        Per-vertex attribute, refined by the same matrix.
+
+    Returns
+    -------
+    V_fine : (n + e, 3) float64 NumPy array
+    F_fine : (4 m, 3) int64 NumPy array
+        Children of face ``f`` are rows ``4 f .. 4 f + 3`` (see
+        :func:`mi_loop.subdivision_matrix`); the limit surface is unchanged.
+    albedo_fine : (n + e, c) float64 NumPy array or None
+    """
+    from mi_loop.subdiv.subdivision import subdivision_matrix
+
+    S, F_fine = subdivision_matrix(F, len(V))
+    return S @ np.asarray(V, dtype=np.float64), F_fine, None if albedo is None else S @ np.asarray(albedo, float)
+
+
+def start_mesh(views, options: ImageFitOptions):
+    """The start control mesh: an icosphere in the visual hull's box, or a template of the hull.
+
+    Parameters
+    ----------
+    views : sequence of mi_loop.io.capture.View
+        The photos (their masks and cameras).
+    options : ImageFitOptions
+        ``init``, ``n_vertices``, ``refinements``, ``seed``.
+
+    Returns
+    -------
+    V : (n, 3) float64 NumPy array
+    F : (m, 3) int64 NumPy array
+    bbox : ((3,), (3,)) float64 NumPy arrays
+        The visual hull's box.
+    """
+    from mi_loop.datasets import icosphere
+    from mi_loop.fitting.hull import visual_hull
+
+    P, N, bbox = visual_hull(views)
+    n0 = options.n_vertices
+    for _ in range(options.refinements):      # closed genus 0: one step maps n to 4 n - 6
+        n0 = (n0 + 6) // 4
+    if options.init == "sphere":
+        s = max(s for s in range(8) if 10 * 4 ** s + 2 <= max(n0, 12)) if n0 >= 12 else 0
+        V, F = icosphere(s)
+        lo, hi = bbox
+        return 0.5 * (lo + hi) + V * (0.5 * (hi - lo)), F, bbox
+    from mi_loop.fitting.template import make_template
+
+    V, F, _ = make_template(P, N, max(n0, 12), seed=options.seed)
+    return V, F, bbox
+
+
+def stage_plan(options: ImageFitOptions, size: tuple[int, int], n_faces: int) -> list[dict]:
+    """Resolution scale, tessellation level and iteration budget of each stage.
+
+    Parameters
+    ----------
+    options : ImageFitOptions
+    size : (int, int)
+        The photos' largest (width, height).
+    n_faces : int
+        Faces of the start control mesh (each stage has four times the previous).
+
+    Returns
+    -------
+    list of dict
+        ``scale`` (image scale factor), ``level``, ``iterations`` per stage.
+    """
+    finest = 1.0 if options.resolution is None else min(1.0, options.resolution / max(size))
+    n_stages = options.refinements + 1
+    plan = []
+    for k in range(n_stages):
+        faces = n_faces * 4 ** k
+        level = int(np.clip(np.round(np.log(options.triangles / faces) / np.log(4)), 0, 6))
+        plan.append({"scale": finest * 0.5 ** (n_stages - 1 - k), "level": level,
+                     "iterations": options.iterations // n_stages + (k < options.iterations % n_stages)})
+    return plan
+
+
+def _laplacian(F, n):
+    E = edges(F)
+    A = sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                      shape=(n, n)).tocsr()
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    return (sp.identity(n) - sp.diags(1.0 / deg) @ A).tocsr()
+
+
+def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start=None, progress=None):
+    """Fit a Loop control mesh and its albedo to calibrated photos (module docstring).
+
+    Parameters
+    ----------
+    views : sequence of mi_loop.io.capture.View
+        Photos with masks and cameras (full resolution; stages resize them).
+    emitters : list of dict or mi.Emitter
+        The capture's lighting, e.g. ``[{"type": "constant"}]``.
+    options : ImageFitOptions, optional
+    start : ((n, 3), (m, 3)) NumPy arrays, optional
+        Start control mesh instead of ``options.init`` (it is refined like the others).
+    progress : callable, optional
+        ``progress(done, total, stage, loss)`` after each iteration.
+
+    Returns
+    -------
+    ImageFitResult
+
+    Raises
+    ------
+    FitError
+        If the loss stops being finite.
+    ValueError
+        If fewer than two views are given.
+    """
+    options = options or ImageFitOptions()
+    views = list(views)
+    if len(views) < 2:
+        fail("fit_images", "at least two photos", f"{len(views)}")
+    t0 = time.perf_counter()
+    if start is None:
+        V, F, bbox = start_mesh(views, options)
+    else:
+        V, F = (np.asarray(a) for a in start)
+        V, F = V.astype(np.float64), F.astype(np.int64)
+        bbox = (V.min(axis=0), V.max(axis=0))
+    c = np.full(V.shape, float(options.albedo))
+    result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox)
+    size = (max(v.camera.width for v in views), max(v.camera.height for v in views))
+    plan = stage_plan(options, size, len(F))
+    total = sum(p["iterations"] for p in plan)
+    done = 0
+    rng = np.random.default_rng(options.seed)
+    diag = float(np.linalg.norm(bbox[1] - bbox[0]))
+    for k, stage in enumerate(plan):
+        if k:
+            V, F, c = refine(V, F, c)
+        t_stage = time.perf_counter()
+        V, c, info = _fit_stage(V, F, c, [v.resized(stage["scale"]) if stage["scale"] < 1 else v for v in views],
+                                emitters, options, stage, k, diag, rng, done, total, t0, result.history, progress)
+        done += info["iterations"]
+        result.stages.append({"n_vertices": len(V), "level": stage["level"], "scale": stage["scale"],
+                              **info, "time_s": time.perf_counter() - t_stage})
+    result.V, result.F, result.albedo = V, F, c
+    return result
+
+
+def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, total, t0, history, progress):
+    """Optimise one control mesh at one resolution; return ``V``, ``c`` and the stage's record."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop.render.photo import PhotoRenderer
+
+    n = len(V)
+    renderer = PhotoRenderer(V, F, c, views, emitters, level=stage["level"], spp=options.spp,
+                             integrator=options.integrator, deterministic=options.deterministic)
+    param = SmoothParameterisation(F, n, options.lam)
+    L = _laplacian(F, n)
+    opt_x = AdamUniform(param.to_parameters(V), lr=options.lr * diag)
+    opt_c = AdamUniform(c, lr=options.albedo_lr, uniform=False)
+    per_sweep = max(1, int(np.ceil(len(views) / options.views_per_iteration)))
+    order, sweep_losses, previous, stalled = [], [], None, False
+    x_np = V.copy()
+    for it in range(stage["iterations"]):
+        if len(order) < options.views_per_iteration:
+            order += rng.permutation(len(views)).tolist()
+        ids, order = order[:options.views_per_iteration], order[options.views_per_iteration:]
+        x = mi.Float(x_np.ravel().astype(np.float32))
+        a = mi.Float(c.ravel().astype(np.float32))
+        dr.enable_grad(x, a)
+        losses = renderer.backward(x, a, ids, seed=done + it + 1000 * options.seed)
+        loss = float(np.mean(losses))
+        if not np.isfinite(loss):
+            raise FitError(f"fit_images(): expected a finite image loss, got {loss} at stage {k}, iteration {it}")
+        g_x = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3)
+        g_x += (2.0 * options.smooth / (n * diag ** 2)) * (L.T @ (L @ x_np))
+        x_np = param.to_points(opt_x.step(param.gradient(g_x)))
+        if options.fit_albedo:
+            opt_c.x = np.clip(opt_c.step(np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)), 0.0, 1.0)
+            c = opt_c.x
+        history.append({"stage": k, "loss": loss, "time": time.perf_counter() - t0})
+        if progress is not None:
+            progress(done + it + 1, total, k, loss)
+        sweep_losses.append(loss)
+        if len(sweep_losses) == per_sweep:
+            mean = float(np.mean(sweep_losses))
+            stalled = previous is not None and mean > (1.0 - options.stall) * previous
+            previous, sweep_losses = min(mean, previous or mean), []
+            if stalled and it + 1 >= stage["iterations"] // 3:
+                return x_np, c, {"iterations": it + 1, "stalled": True, "width": views[0].camera.width,
+                                 "height": views[0].camera.height}
+    return x_np, c, {"iterations": stage["iterations"], "stalled": False, "width": views[0].camera.width,
+                     "height": views[0].camera.height}

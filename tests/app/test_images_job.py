@@ -1,0 +1,114 @@
+"""``mi-loop fit-images``: a capture on disk in, a coloured control mesh, report and pictures out."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from mi_loop import io
+from mi_loop.app.cli import main
+from mi_loop.io.capture import write_capture
+from mi_loop.io.emitters import DEFAULT_EMITTERS
+from mi_loop.render.cameras import fibonacci_cameras
+from mi_loop.render.photo import render_views
+from mi_loop.subdiv.masks import limit_mesh
+
+from helpers import one_line_error
+
+FAST = ["--iterations", "6", "--spp", "2", "--vertices", "170", "--refinements", "1", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    from mi_loop import datasets
+
+    P, F, N = limit_mesh(*datasets.blob(), 2)
+    P = (P - P.mean(0)) / np.linalg.norm(P.max(0) - P.min(0))
+    cams = fibonacci_cameras(6, [0, 0, 0], 1.9, fov_x_deg=35, width=40, height=32)
+    views = render_views(P, F, cams, [dict(e) for e in DEFAULT_EMITTERS], normals=N,
+                         colors=np.clip(0.5 + P, 0.1, 0.8), spp=8)
+    return write_capture(tmp_path_factory.mktemp("capture"), views)
+
+
+def test_fit_images_writes_a_coloured_control_mesh_report_and_pictures(capture, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["fit-images", str(capture), "-o", str(out), *FAST]) == 0
+    printed = capsys.readouterr().out.split()
+    assert printed == [str(out / name) for name in ("control.ply", "limit.ply", "report.json", "progress.png",
+                                                    "loss.png")]
+    V, F = io.read_mesh(out / "control.ply")
+    colors = io.read_vertex_colors(out / "control.ply")
+    assert colors.shape == V.shape and (colors >= 0).all() and (colors <= 1).all()
+    assert len(V) == 162                                 # 42 -> 162: one exact refinement within 170
+    P_lim, _ = io.read_mesh(out / "limit.ply")
+    assert io.read_vertex_colors(out / "limit.ply").shape == P_lim.shape
+    report = json.loads((out / "report.json").read_text())
+    assert [s["n_vertices"] for s in report["stages"]] == [42, 162]
+    assert [(s["width"], s["height"]) for s in report["stages"]] == [(20, 16), (40, 32)]
+    assert len(report["views"]) == 6 and all(v["loss_end"] > 0 for v in report["views"])
+    assert report["parameters"] == {"control_points": 3 * 162, "albedo": 3 * 162}
+    assert report["params"]["iterations"] == 6 and report["lighting"].startswith("constant")
+    grid = imread(out / "progress.png")
+    assert grid.shape[:2] == (3 * 32, 4 * 40)             # target, start, fit rows; four views
+    assert imread(out / "loss.png").shape[0] > 100
+
+
+def test_fit_images_reads_the_lighting_file(capture, tmp_path, capsys):
+    lights = tmp_path / "lights.xml"
+    lights.write_text('<scene version="3.0.0"><emitter type="constant"><rgb name="radiance" value="0.8"/>'
+                      "</emitter></scene>")
+    out = tmp_path / "out"
+    assert main(["fit-images", str(capture), "-o", str(out), "--emitters", str(lights), *FAST]) == 0
+    assert json.loads((out / "report.json").read_text())["lighting"] == str(lights)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--lr", "-1"], "fit-images --lr: expected a finite number > 0, got -1.0"),
+    (["--refinements", "9"], "fit-images --refinements: expected an integer in 0..4, got 9"),
+    (["--init", "nosuch.ply"], "fit-images --init: expected sphere, hull or an existing control mesh file, "
+                               "got 'nosuch.ply'"),
+])
+def test_bad_options_are_refused_before_reading(extra, message, tmp_path, capsys):
+    line = one_line_error(capsys, ["fit-images", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o"), *extra])
+    assert line == f"mi-loop: error: {message}"
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_lighting_file_with_a_shape_is_refused_and_nothing_is_written(capture, tmp_path, capsys):
+    lights = tmp_path / "lights.xml"
+    lights.write_text('<scene version="3.0.0"><emitter type="constant"/><shape type="sphere"/></scene>')
+    line = one_line_error(capsys, ["fit-images", str(capture), "-o", str(tmp_path / "o"), "--emitters",
+                                   str(lights), *FAST])
+    assert line == (f"mi-loop: error: read_emitters(): expected only <emitter> (and <default>) elements in "
+                    f"'{lights}', got <shape> as element 1 (the lighting file must not hold shapes, sensors "
+                    "or integrators)")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_capture_with_a_missing_photo_is_refused(capture, tmp_path, capsys):
+    meta = json.loads(capture.read_text())
+    meta["frames"][2]["file_path"] = "images/nosuch.png"
+    broken = capture.parent / "broken.json"
+    broken.write_text(json.dumps(meta))
+    line = one_line_error(capsys, ["fit-images", str(broken), "-o", str(tmp_path / "o"), *FAST])
+    assert "frames[2].file_path" in line and "nosuch.png" in line and str(broken) in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("body, message", [
+    ("<scene version='3.0.0'></scene>", "expected at least one <emitter> in '{p}', got none"),
+    ("<scene version='3.0.0'><emitter type='nosuch'/></scene>", "expected a Mitsuba scene file in '{p}', got "),
+    ("<scene", "expected well-formed XML in '{p}', got "),
+    ("<emitter type='constant'/>", "expected a <scene> root element in '{p}', got <emitter>"),
+])
+def test_read_emitters_messages(body, message, tmp_path):
+    from mi_loop.io.emitters import read_emitters
+
+    path = tmp_path / "l.xml"
+    path.write_text(body)
+    with pytest.raises(ValueError) as info:
+        read_emitters(path)
+    assert str(info.value).startswith("read_emitters(): " + message.format(p=path))
+    assert "\n" not in str(info.value)
