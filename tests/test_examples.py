@@ -43,8 +43,8 @@ def test_example_02_brings_the_limit_surface_closer_to_the_target(tmp_path):
 
 def test_example_03_imports_and_defines_its_entry_point():
     """Example 03 takes about two minutes; here only that it still imports against the package."""
-    source = (REPO / "examples" / "03_inverse_render.py").read_text()
-    path = REPO / "examples" / "03_inverse_render.py"
+    source = (REPO / "examples" / "03_fit_images.py").read_text()
+    path = REPO / "examples" / "03_fit_images.py"
     code = compile(source, str(path), "exec")
     namespace = {"__name__": "not_main", "__file__": str(path)}
     exec(code, namespace)

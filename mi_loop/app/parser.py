@@ -214,9 +214,9 @@ def _images_parser(sub, common) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     p.add_argument("--vertices", dest="n_vertices", type=int, metavar="N", default=o.n_vertices,
                    help="most control vertices after the refinements (default %(default)s)")
-    p.add_argument("--init", default=o.init, metavar="sphere|hull|MESH",
-                   help="start shape: an icosphere in the visual hull's box (sphere, default), a template of "
-                        "the visual hull of the masks (hull), or a control mesh file")
+    p.add_argument("--init", default=o.init, metavar="hull|sphere|MESH",
+                   help="start shape: a template of the visual hull of the masks (hull, default), an "
+                        "icosphere in the hull's box (sphere), or a control mesh file")
     p.add_argument("--refinements", type=int, default=o.refinements,
                    help="exact Loop refinements of the control mesh, coarse to fine (default %(default)s)")
     p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,

@@ -112,7 +112,7 @@ def start_mesh(views, options: ImageFitOptions):
     from mi_loop.datasets import icosphere
     from mi_loop.fitting.hull import visual_hull
 
-    P, N, bbox = visual_hull(views)
+    P, N, bbox = visual_hull(views, resolution=96)
     n0 = options.n_vertices
     for _ in range(options.refinements):      # closed genus 0: one step maps n to 4 n - 6
         n0 = (n0 + 6) // 4
@@ -250,6 +250,7 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, tot
             raise FitError(f"fit_images(): expected a finite image loss, got {loss} at stage {k}, iteration {it}")
         g_x = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3)
         g_x += (2.0 * options.smooth / (n * diag ** 2)) * (L.T @ (L @ x_np))
+        opt_x.lr = options.lr * diag * options.lr_decay ** (it / max(1, stage["iterations"] - 1))
         x_np = param.to_points(opt_x.step(param.gradient(g_x)))
         if options.fit_albedo:
             opt_c.x = np.clip(opt_c.step(np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)), 0.0, 1.0)
@@ -258,11 +259,11 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, tot
         if progress is not None:
             progress(done + it + 1, total, k, loss)
         sweep_losses.append(loss)
-        if len(sweep_losses) == per_sweep:
+        if len(sweep_losses) == 2 * per_sweep:          # two sweeps of the photos: a less noisy mean
             mean = float(np.mean(sweep_losses))
             stalled = previous is not None and mean > (1.0 - options.stall) * previous
             previous, sweep_losses = min(mean, previous or mean), []
-            if stalled and it + 1 >= stage["iterations"] // 3:
+            if options.stall > 0 and stalled and it + 1 >= stage["iterations"] // 2:
                 return x_np, c, {"iterations": it + 1, "stalled": True, "width": views[0].camera.width,
                                  "height": views[0].camera.height}
     return x_np, c, {"iterations": stage["iterations"], "stalled": False, "width": views[0].camera.width,

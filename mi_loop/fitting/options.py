@@ -278,7 +278,7 @@ class SequenceOptions:
 
 
 #: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
-IMAGE_INITS = ("sphere", "hull")
+IMAGE_INITS = ("hull", "sphere")
 
 
 @dataclass
@@ -290,9 +290,10 @@ class ImageFitOptions:
     n_vertices : int
         Most control vertices: the start mesh is chosen so that ``refinements``
         exact Loop steps stay at or below it (>= 4).
-    init : {'sphere', 'hull'}
-        Start shape: an icosphere in the visual hull's box, or a template of
-        the visual hull of the masks (ignored when a start mesh is given).
+    init : {'hull', 'sphere'}
+        Start shape: a template of the visual hull of the masks (screened
+        Poisson of the hull's boundary, decimated), or an icosphere in the
+        hull's box (ignored when a start mesh is given).
     refinements : int
         Exact Loop refinements of the control mesh (stages - 1), >= 0.
     resolution : int or None
@@ -307,6 +308,8 @@ class ImageFitOptions:
         Photos rendered per iteration (a seeded sweep through all of them).
     lr : float
         Step of the smooth parameterisation, relative to the hull's box diagonal.
+    lr_decay : float
+        Step at the end of each stage relative to its start (exponential decay), in (0, 1].
     albedo_lr : float
         Adam step of the albedo.
     lam : float
@@ -319,8 +322,9 @@ class ImageFitOptions:
     fit_albedo : bool
         Estimate the albedo (False: keep it at ``albedo``).
     stall : float
-        Relative loss decrease over one sweep of the photos below which a
-        stage ends early.
+        A stage ends early (after half its iterations) when the mean loss over
+        two sweeps of the photos falls by less than this fraction of the best
+        earlier two-sweep mean; 0: never.
     triangles : int
         Rendered triangles per stage, roughly (sets the tessellation level).
     integrator : {'direct_projective', 'prb_projective'}
@@ -330,14 +334,15 @@ class ImageFitOptions:
         Bit-reproducible runs: reverse renders on one thread (slower).
     """
 
-    n_vertices: int = 2562
-    init: str = "sphere"
-    refinements: int = 2
+    n_vertices: int = 900
+    init: str = "hull"
+    refinements: int = 1
     resolution: int | None = None
-    spp: int = 8
-    iterations: int = 600
+    spp: int = 4
+    iterations: int = 300
     views_per_iteration: int = 2
     lr: float = 0.01
+    lr_decay: float = 1.0
     albedo_lr: float = 0.02
     lam: float = 20.0
     smooth: float = 0.05
@@ -360,6 +365,7 @@ class ImageFitOptions:
                       "spp": COUNT, "iterations": COUNT, "views_per_iteration": COUNT,
                       "lr": (_positive_real, "a finite number > 0"),
                       "albedo_lr": (_positive_real, "a finite number > 0"),
+                      "lr_decay": (lambda v: _is_real(v) and 0 < v <= 1, "a number in (0, 1]"),
                       "lam": WEIGHT, "smooth": WEIGHT,
                       "albedo": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
                       "fit_albedo": FLAG, "stall": WEIGHT, "triangles": COUNT,

@@ -8,7 +8,8 @@ through it); it sits just above :mod:`mi_loop.mesh`.
 - :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
 - :mod:`~mi_loop.io.points`: :func:`load_oriented_points` (point clouds, or meshes sampled);
 - :mod:`~mi_loop.io.capture`: calibrated multi-view captures, NeRF / Blender ``transforms.json``
-  (:func:`read_capture`, :func:`write_capture`; :class:`Camera`, :class:`View`, :class:`Capture`);
+  (:func:`read_capture`, :func:`write_capture`), with the data classes of :mod:`~mi_loop.io.views`
+  (:class:`Camera`, :class:`View`, :class:`Capture`);
 - :mod:`~mi_loop.io.formats`, :mod:`~mi_loop.io.ply`: the file formats, as polygon lists;
 - :mod:`~mi_loop.io.srgb`: the sRGB curve (:func:`srgb_to_linear`, :func:`linear_to_srgb`);
 - :mod:`~mi_loop.io.files`: atomic writes (:func:`write_png`, :func:`write_text`),

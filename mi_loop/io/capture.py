@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +35,7 @@ import numpy as np
 from mi_loop.errors import fail
 from mi_loop.io.files import ensure_writable_dir, first_missing_ancestor, remove_if_empty, staged_outputs, write_text
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
+from mi_loop.io.views import Camera, Capture, View, check_factor, pose_problem
 
 __all__ = ["IMAGE_SUFFIXES", "Camera", "Capture", "View", "read_capture", "write_capture"]
 
@@ -44,243 +44,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
 #: Camera models that are pinholes once their distortion coefficients are zero.
 _PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
 _DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
-
-
-def _pose_problem(c2w):
-    """``(what, got)`` when ``c2w`` is no camera-to-world matrix, else None."""
-    try:
-        M = np.asarray(c2w, dtype=np.float64)
-    except (TypeError, ValueError):
-        return "a 4 x 4 matrix of numbers", repr(c2w)[:80]
-    if M.shape != (4, 4):
-        return "a 4 x 4 matrix", f"shape {M.shape}"
-    if not np.isfinite(M).all():
-        r, c = np.argwhere(~np.isfinite(M))[0]
-        return "a finite matrix", f"{M[r, c]} at row {r}, column {c}"
-    if np.abs(M[3] - (0, 0, 0, 1)).max() > 1e-9:
-        return "a last row (0, 0, 0, 1)", f"{M[3].tolist()}"
-    if not np.linalg.cond(M[:3, :3]) < 1e12:
-        return "an invertible matrix", f"a singular 3 x 3 block (determinant {np.linalg.det(M[:3, :3]):.3g})"
-    return None
-
-
-def _factor(factor, func: str, downsampling: bool = False) -> float:
-    """``factor`` as a float; refuse one that is not finite and > 0 (or is above 1 when ``downsampling``)."""
-    ok = isinstance(factor, (int, float, np.integer, np.floating)) and not isinstance(factor, bool) \
-        and math.isfinite(factor) and factor > 0
-    if not ok or (downsampling and factor > 1):
-        fail(func, "a factor in (0, 1] (downsampling only)" if downsampling else "a finite factor > 0", factor)
-    return float(factor)
-
-
-def _scaled_size(n: int, factor: float, func: str) -> int:
-    """``n * factor`` rounded half up; refuse a factor that leaves no pixel."""
-    m = int(math.floor(n * factor + 0.5))
-    if m < 1:
-        fail(func, f"a factor that leaves at least one of {n} pixels", factor)
-    return m
-
-
-@dataclass(frozen=True)
-class Camera:
-    """Pinhole camera, NeRF/OpenGL convention.
-
-    A world point ``p`` is seen at ``x = cx + fx X / -Z``, ``y = cy - fy Y / -Z``
-    where ``(X, Y, Z) = inv(c2w) p`` (see :func:`mi_loop.render.cameras.project`).
-    Cameras compare equal when all fields are equal.
-
-    Attributes
-    ----------
-    c2w : (4, 4) float64 NumPy array
-        Camera-to-world transform (read-only copy), OpenGL axes: the camera looks
-        down -Z, +Y up, +X right; last row (0, 0, 0, 1), invertible.
-    fx, fy : float
-        Focal lengths in pixels (> 0).
-    cx, cy : float
-        Principal point in pixels, x right and y down from the top-left corner
-        of the top-left pixel (centred: ``(width / 2, height / 2)``).
-    width, height : int
-        Image size in pixels.
-
-    Raises
-    ------
-    ValueError
-        A field of the wrong shape or range.
-    """
-
-    c2w: np.ndarray
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    def __post_init__(self):
-        problem = _pose_problem(self.c2w)
-        if problem:
-            fail("Camera", f"c2w: {problem[0]}", problem[1])
-        c2w = np.array(self.c2w, dtype=np.float64)
-        c2w.flags.writeable = False
-        object.__setattr__(self, "c2w", c2w)
-        for name in ("fx", "fy", "cx", "cy"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(value) or (name in ("fx", "fy") and value <= 0):
-                fail("Camera", f"a finite {name}" + (" > 0" if name in ("fx", "fy") else ""), value)
-            object.__setattr__(self, name, float(value))
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                fail("Camera", f"an integer {name} >= 1", value)
-            object.__setattr__(self, name, int(value))
-
-    def __eq__(self, other):
-        if not isinstance(other, Camera):
-            return NotImplemented
-        return np.array_equal(self.c2w, other.c2w) and self._intrinsics() == other._intrinsics()
-
-    def __hash__(self):
-        return hash((self.c2w.tobytes(), self._intrinsics()))
-
-    def _intrinsics(self) -> tuple:
-        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height)
-
-    def scaled(self, factor: float) -> Camera:
-        """Return the same camera for its image resized by ``factor``.
-
-        The new size is ``round(width * factor) x round(height * factor)`` (half
-        up) and pixel coordinates scale by ``new / old`` on each axis, so the
-        resized image covers the same field of view. When ``width * factor`` or
-        ``height * factor`` is not an integer the two axes scale slightly
-        differently and pixels stop being square (:func:`~mi_loop.render.cameras.sensor_dict`
-        refuses that): pick a factor that divides both sizes.
-
-        Parameters
-        ----------
-        factor : float
-            Scale, > 0.
-
-        Returns
-        -------
-        Camera
-
-        Examples
-        --------
-        >>> cam = Camera(np.eye(4), 100.0, 100.0, 32.0, 24.0, 64, 48).scaled(0.5)
-        >>> cam.fx, cam.cx, cam.cy, cam.width, cam.height
-        (50.0, 16.0, 12.0, 32, 24)
-        """
-        factor = _factor(factor, "Camera.scaled")
-        w, h = (_scaled_size(n, factor, "Camera.scaled") for n in (self.width, self.height))
-        sx, sy = w / self.width, h / self.height
-        return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
-
-
-def _box_average(a: np.ndarray, m: int, axis: int) -> np.ndarray:
-    """Average ``a`` over ``m`` equal intervals along ``axis``, with exact fractional-pixel weights."""
-    n = a.shape[axis]
-    if m == n:
-        return a
-    a = np.moveaxis(a, axis, 0).astype(np.float64)
-    if n % m == 0:
-        out = a.reshape(m, n // m, *a.shape[1:]).mean(axis=1)
-    else:                                   # integral of the piecewise-constant image at m + 1 cuts
-        C = np.concatenate([np.zeros((1, *a.shape[1:])), np.cumsum(a, axis=0)])
-        t = np.arange(m + 1) * (n / m)
-        k = np.minimum(np.floor(t).astype(np.int64), n - 1)
-        S = C[k] + (t - k).reshape(-1, *[1] * (a.ndim - 1)) * a[k]
-        out = np.diff(S, axis=0) * (m / n)
-    return np.moveaxis(out, 0, axis)
-
-
-@dataclass(frozen=True, eq=False)
-class View:
-    """One calibrated image: camera, linear RGB, foreground mask.
-
-    Attributes
-    ----------
-    camera : Camera
-        Its size is the image's.
-    rgb : (height, width, 3) float32 NumPy array
-        Linear radiance, finite (PNG/JPEG sRGB-decoded; EXR as stored).
-    mask : (height, width) float32 NumPy array
-        Foreground in [0, 1] (alpha or ``mask_path``; ones when there is neither).
-    name : str
-        The frame's ``file_path`` as the JSON writes it.
-
-    Raises
-    ------
-    ValueError
-        Arrays whose shape differs from the camera's image, non-finite pixels,
-        mask values outside [0, 1].
-    """
-
-    camera: Camera
-    rgb: np.ndarray
-    mask: np.ndarray
-    name: str
-
-    def __post_init__(self):
-        if not isinstance(self.camera, Camera):
-            fail("View", "a Camera", type(self.camera).__name__, TypeError)
-        h, w = self.camera.height, self.camera.width
-        rgb = np.ascontiguousarray(self.rgb, dtype=np.float32)
-        mask = np.ascontiguousarray(self.mask, dtype=np.float32)
-        if rgb.shape != (h, w, 3):
-            fail("View", f"rgb of shape (h, w, 3) = {(h, w, 3)} as the camera", f"shape {rgb.shape}")
-        if mask.shape != (h, w):
-            fail("View", f"a mask of shape (h, w) = {(h, w)} as the camera", f"shape {mask.shape}")
-        bad = ~np.isfinite(rgb)
-        if bad.any():
-            fail("View", "finite rgb", f"{rgb[bad][0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
-        bad = ~((mask >= 0) & (mask <= 1))
-        if bad.any():
-            fail("View", "mask values in [0, 1]", f"{mask[bad][0]} at pixel {np.argwhere(bad)[0].tolist()}")
-        object.__setattr__(self, "rgb", rgb)
-        object.__setattr__(self, "mask", mask)
-        object.__setattr__(self, "name", str(self.name))
-
-    def resized(self, factor: float) -> View:
-        """Return the view downsampled by ``factor`` (area-averaged rgb and mask, :meth:`Camera.scaled`).
-
-        Every new pixel is the mean of the old image over its footprint
-        (``old / new`` pixels on each axis, fractional pixels weighted by their area).
-
-        Parameters
-        ----------
-        factor : float
-            In (0, 1]; 1 returns the view itself.
-
-        Returns
-        -------
-        View
-        """
-        camera = self.camera.scaled(_factor(factor, "View.resized", downsampling=True))
-        if (camera.width, camera.height) == (self.camera.width, self.camera.height):
-            return self
-        def resample(a):
-            return _box_average(_box_average(a, camera.height, 0), camera.width, 1)
-        return View(camera, resample(self.rgb), np.clip(resample(self.mask), 0, 1), self.name)
-
-
-@dataclass(frozen=True, eq=False)
-class Capture:
-    """A calibrated multi-view capture as read from a ``transforms.json``.
-
-    Attributes
-    ----------
-    views : tuple of View
-        In the order of the JSON's ``frames``.
-    path : pathlib.Path
-        The ``transforms.json`` file.
-    """
-
-    views: tuple
-    path: Path
-
-
-# -------------------------------------------------------------------- reading
 
 
 def _read_json(path: Path) -> dict:
@@ -443,7 +206,7 @@ def _camera(fr: _Frame, w_img: int, h_img: int) -> Camera:
     cx = fr.number("cx")
     cy = fr.number("cy")
     matrix = fr.frame.get("transform_matrix")
-    problem = _pose_problem(matrix) if matrix is not None else ("a camera-to-world 4 x 4 matrix", "none")
+    problem = pose_problem(matrix) if matrix is not None else ("a camera-to-world 4 x 4 matrix", "none")
     if problem:
         fail("read_capture", f"{problem[0]} for frames[{fr.i}].transform_matrix in '{fr.path}'", problem[1])
     return Camera(np.asarray(matrix, dtype=np.float64), fx, fx if fy is None else fy,
@@ -485,7 +248,7 @@ def read_capture(path, *, factor: float = 1.0) -> Capture:
         lens distortion; an all-zero mask or one of another size than its image.
         The message names the file, the frame and the field.
     """
-    factor = _factor(factor, "read_capture", downsampling=True)
+    factor = check_factor(factor, "read_capture", downsampling=True)
     path = Path(path)
     meta = _read_json(path)
     views = []

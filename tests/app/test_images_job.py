@@ -17,7 +17,7 @@ from mi_loop.subdiv.masks import limit_mesh
 
 from helpers import one_line_error
 
-FAST = ["--iterations", "6", "--spp", "2", "--vertices", "170", "--refinements", "1", "--quiet"]
+FAST = ["--init", "sphere", "--iterations", "6", "--spp", "2", "--vertices", "170", "--refinements", "1", "--quiet"]
 
 
 @pytest.fixture(scope="module")
