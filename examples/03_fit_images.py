@@ -10,6 +10,8 @@ steps (42 -> 162 -> 642 control vertices) while the images go from 32^2 to 128^2
 Run from the repository root:  .venv/bin/python examples/03_fit_images.py   (or, on the written
 capture: .venv/bin/mi-loop fit-images out/03_capture/transforms.json -o out/03_fit --vertices 642 --res 128)
 Writes out/03_fit_images.png (rows: photos, start, fit; 4 of the 16 views).
+Measured on 2 cores: mean distance to the target 0.0106 -> 0.0048 of the bbox diagonal (RMS
+0.0122 -> 0.0064), mean albedo error 0.027, 59 s.
 """
 from __future__ import annotations
 
