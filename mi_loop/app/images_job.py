@@ -38,9 +38,9 @@ OUTPUTS = ("control.ply", "limit.ply", "report.json", "progress.png", "loss.png"
 SHOWN = 4
 
 
-def _start(init: str | Path | None, log):
-    """A start mesh from ``--init MESH`` (arrays), or None for 'sphere'/'hull'."""
-    if init is None or str(init) in ("sphere", "hull"):
+def _start(init: Path | None, log):
+    """A start mesh from ``--init MESH`` (arrays), or None (``options.init`` decides)."""
+    if init is None:
         return None
     from mi_loop.mesh.topology import validate_mesh
 
@@ -61,7 +61,7 @@ def _evaluate(result, views, emitters, options, log):
     """Per-view losses and renders of the start and of the fit at the finest resolution."""
     import mitsuba as mi
 
-    from mi_loop.fitting.images import stage_plan
+    from mi_loop.fitting.images import tessellation_level
     from mi_loop.render.photo import PhotoRenderer
 
     finest = _finest(views, options)
@@ -69,12 +69,12 @@ def _evaluate(result, views, emitters, options, log):
     out = {}
     for name, (V, F, c) in {"start": (result.V0, result.F0, result.albedo0),
                             "end": (result.V, result.F, result.albedo)}.items():
-        level = stage_plan(ImageFitOptions(refinements=0, triangles=options.triangles), (1, 1), len(F))[0]["level"]
-        r = PhotoRenderer(V, F, c, finest, emitters, level=level, spp=options.spp, integrator=options.integrator)
+        r = PhotoRenderer(V, F, c, finest, emitters, level=tessellation_level(len(F), options.triangles),
+                          spp=options.spp, integrator=options.integrator)
         x, a = mi.Float(V.ravel().astype(np.float32)), mi.Float(c.ravel().astype(np.float32))
         out[name] = {"losses": r.losses(x, a, seed=99, spp=4 * options.spp),
                      "images": [np.asarray(r.render(x, a, k, seed=7, spp=4 * options.spp)) for k in shown]}
-        out["targets"] = [np.asarray(r.targets[k]) for k in shown]
+        out.setdefault("targets", [np.asarray(r.targets[k]) for k in shown])   # the same for both
     log.say(f"mean L1 over the {len(finest)} photos: {np.mean(out['start']['losses']):.4f} at the start, "
             f"{np.mean(out['end']['losses']):.4f} at the end")
     return out, shown

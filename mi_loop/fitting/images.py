@@ -25,11 +25,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.errors import FitError, fail
-from mi_loop.fitting.largesteps import AdamUniform, SmoothParameterisation
+from mi_loop.fitting.largesteps import AdamUniform, SmoothParameterisation, adjacency
 from mi_loop.fitting.options import ImageFitOptions
-from mi_loop.mesh.geometry import edges
 
-__all__ = ["ImageFitResult", "fit_images", "start_mesh", "refine", "stage_plan"]
+__all__ = ["ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh", "tessellation_level"]
 
 
 @dataclass
@@ -127,6 +126,28 @@ def start_mesh(views, options: ImageFitOptions):
     return V, F, bbox
 
 
+def tessellation_level(n_faces: int, triangles: int) -> int:
+    """Return the tessellation level (0..6) whose ``n_faces * 4**level`` triangles are nearest ``triangles``.
+
+    Parameters
+    ----------
+    n_faces : int
+        Control faces.
+    triangles : int
+        Wanted rendered triangles.
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> tessellation_level(320, 20_000), tessellation_level(5120, 20_000)
+    (3, 1)
+    """
+    return int(np.clip(np.round(np.log(triangles / n_faces) / np.log(4)), 0, 6))
+
+
 def stage_plan(options: ImageFitOptions, size: tuple[int, int], n_faces: int) -> list[dict]:
     """Resolution scale, tessellation level and iteration budget of each stage.
 
@@ -147,17 +168,15 @@ def stage_plan(options: ImageFitOptions, size: tuple[int, int], n_faces: int) ->
     n_stages = options.refinements + 1
     plan = []
     for k in range(n_stages):
-        faces = n_faces * 4 ** k
-        level = int(np.clip(np.round(np.log(options.triangles / faces) / np.log(4)), 0, 6))
-        plan.append({"scale": finest * 0.5 ** (n_stages - 1 - k), "level": level,
+        plan.append({"scale": finest * 0.5 ** (n_stages - 1 - k),
+                     "level": tessellation_level(n_faces * 4 ** k, options.triangles),
                      "iterations": options.iterations // n_stages + (k < options.iterations % n_stages)})
     return plan
 
 
 def _laplacian(F, n):
-    E = edges(F)
-    A = sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
-                      shape=(n, n)).tocsr()
+    """``I - D^-1 A``: each control point minus the mean of its neighbours."""
+    A = adjacency(F, n)
     deg = np.asarray(A.sum(axis=1)).ravel()
     return (sp.identity(n) - sp.diags(1.0 / deg) @ A).tocsr()
 

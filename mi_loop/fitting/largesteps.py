@@ -20,7 +20,27 @@ import scipy.sparse.linalg as spla
 from mi_loop.errors import fail
 from mi_loop.mesh.geometry import edges
 
-__all__ = ["AdamUniform", "SmoothParameterisation"]
+__all__ = ["AdamUniform", "SmoothParameterisation", "adjacency"]
+
+
+def adjacency(F, n: int) -> sp.csr_matrix:
+    """Return the vertex adjacency matrix of a triangle mesh.
+
+    Parameters
+    ----------
+    F : (m, 3) int NumPy array
+        Triangles.
+    n : int
+        Number of vertices.
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix, float64
+        ``A_ij = 1`` where ``i`` and ``j`` share an edge; its row sums are the valences.
+    """
+    E = edges(np.asarray(F))
+    return sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                         shape=(n, n)).tocsr()
 
 
 class SmoothParameterisation:
@@ -53,9 +73,7 @@ class SmoothParameterisation:
     def __init__(self, F, n: int, lam: float):
         if not (np.isfinite(lam) and lam >= 0):
             fail("SmoothParameterisation", "lam to be a finite number >= 0", lam)
-        E = edges(np.asarray(F))
-        A = sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
-                          shape=(n, n)).tocsr()
+        A = adjacency(F, n)
         L = sp.diags(np.asarray(A.sum(axis=1)).ravel()) - A
         self.lam = float(lam)
         self.M = (sp.identity(n) + self.lam * L).tocsc()

@@ -193,14 +193,13 @@ class PhotoRenderer:
         import mitsuba as mi
 
         self._set(x, c)
-        image = mi.render(self.scene, self.params, spp=int(spp or self.spp), seed=int(seed), sensor=int(k))
-        return image[..., :3] if image.shape[2] > 3 else image
+        return mi.render(self.scene, self.params, spp=int(spp or self.spp), seed=int(seed), sensor=int(k))
 
-    def view_loss(self, x, c, k: int, *, seed: int):
+    def view_loss(self, x, c, k: int, *, seed: int, spp: int | None = None):
         """Mean L1 between the render of view ``k`` and its target; ``mi.Float (1)``, differentiable."""
         import drjit as dr
 
-        return dr.mean(dr.abs(self.render(x, c, k, seed=seed) - self.targets[k]).array)
+        return dr.mean(dr.abs(self.render(x, c, k, seed=seed, spp=spp) - self.targets[k]).array)
 
     def backward(self, x, c, view_ids, *, seed: int) -> list:
         """Accumulate the gradients of ``mean_k loss_k`` into ``x`` and ``c``; return each ``loss_k``.
@@ -223,5 +222,4 @@ class PhotoRenderer:
         import drjit as dr
 
         with dr.suspend_grad():
-            return [float(dr.mean(dr.abs(self.render(x, c, k, seed=seed + k, spp=spp) - self.targets[k]).array)[0])
-                    for k in range(len(self.views))]
+            return [float(self.view_loss(x, c, k, seed=seed + k, spp=spp)[0]) for k in range(len(self.views))]
