@@ -6,6 +6,9 @@ through it); it sits just above :mod:`mi_loop.mesh`.
 - :mod:`~mi_loop.io.meshes`: :func:`read_mesh`, :func:`read_control_mesh` (with the
   count of polygons split into triangles), :func:`write_ply`;
 - :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
+- :mod:`~mi_loop.io.animation`: :func:`bake_animation` (a skinned or node-animated glTF clip as
+  meshes in correspondence, :class:`BakedAnimation`), :func:`animation_names`; it reads files
+  through :mod:`~mi_loop.io.gltf` (GLB / glTF container, accessors, base colours);
 - :mod:`~mi_loop.io.points`: :func:`load_oriented_points` (point clouds, or meshes sampled);
 - :mod:`~mi_loop.io.capture`: calibrated multi-view captures, NeRF / Blender ``transforms.json``
   (:func:`read_capture`, :func:`write_capture`), with the data classes of :mod:`~mi_loop.io.views`
@@ -20,6 +23,7 @@ Every rejected file raises :class:`ValueError` reading ``function(): expected
 """
 from __future__ import annotations
 
+from mi_loop.io.animation import BakedAnimation, animation_names, bake_animation
 from mi_loop.io.capture import (
     IMAGE_SUFFIXES,
     Camera,
@@ -54,11 +58,14 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "MESH_SUFFIXES",
     "POINT_SUFFIXES",
+    "BakedAnimation",
     "Camera",
     "Capture",
     "ControlMesh",
     "View",
+    "animation_names",
     "atomic_open",
+    "bake_animation",
     "ensure_writable_dir",
     "first_missing_ancestor",
     "linear_to_srgb",

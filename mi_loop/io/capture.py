@@ -26,6 +26,7 @@ the frame (``frames[i]``) and the field.
 """
 from __future__ import annotations
 
+import glob
 import json
 import math
 from pathlib import Path
@@ -37,7 +38,7 @@ from mi_loop.io.files import ensure_writable_dir, first_missing_ancestor, remove
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 from mi_loop.io.views import Camera, Capture, View, check_factor, pose_problem
 
-__all__ = ["IMAGE_SUFFIXES", "Camera", "Capture", "View", "read_capture", "write_capture"]
+__all__ = ["IMAGE_SUFFIXES", "Camera", "Capture", "View", "list_captures", "read_capture", "write_capture"]
 
 #: Image suffixes :func:`read_capture` reads, in the order it tries them for a ``file_path`` without one.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
@@ -262,6 +263,67 @@ def read_capture(path, *, factor: float = 1.0) -> Capture:
                     _mask(fr, alpha, (h, w)), fr.frame["file_path"])
         views.append(view if factor == 1 else view.resized(factor))
     return Capture(tuple(views), path)
+
+
+def list_captures(inputs, name: str = "transforms.json", where: str = "list_captures") -> list:
+    """The captures of a sequence, one per frame, sorted: ``transforms.json`` paths (not read yet).
+
+    Parameters
+    ----------
+    inputs : list of str or os.PathLike
+        ``transforms.json`` files (any name ending in ``.json``); directories
+        holding one (``DIR/transforms.json``) or whose sub-directories do
+        (``DIR/0000/transforms.json`` ..., sorted by name); or quoted glob
+        patterns (``'cap/*/transforms.json'``, sorted). The order given is kept
+        between items.
+    name : str
+        The file name looked for in directories.
+    where : str
+        Who asks, for messages (``'fit-sequence --images'``).
+
+    Returns
+    -------
+    list of pathlib.Path
+
+    Raises
+    ------
+    ValueError
+        A path that does not exist, a directory without captures, a pattern
+        that matches nothing.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     for f in ("b", "a"):
+    ...         os.makedirs(os.path.join(d, f)); _ = open(os.path.join(d, f, "transforms.json"), "w").write("{}")
+    ...     [p.parent.name for p in list_captures([d])]
+    ['a', 'b']
+    """
+    out = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            if (p / name).is_file():
+                out.append(p / name)
+                continue
+            found = sorted(q / name for q in p.iterdir() if q.is_dir() and (q / name).is_file())
+            if not found:
+                fail(where, f"a directory holding {name} or sub-directories that do", f"none in '{p}'")
+            out += found
+        elif p.is_file():
+            out.append(p)
+        elif any(c in str(item) for c in "*?["):
+            matches = sorted(Path(m) for m in glob.glob(str(item)))
+            matches = [m / name if m.is_dir() else m for m in matches]
+            matches = [m for m in matches if m.is_file()]
+            if not matches:
+                fail(where, "captures matching the pattern", f"none for '{item}'")
+            out += matches
+        else:
+            fail(where, "an existing transforms.json, directory or glob pattern",
+                 f"'{p}': no such file or directory")
+    return out
 
 
 # -------------------------------------------------------------------- writing

@@ -18,14 +18,103 @@ from mi_loop.errors import fail
 from mi_loop.io.meshes import read_mesh
 from mi_loop.io.points import load_oriented_points
 
-__all__ = ["FRAME_SUFFIXES", "read_frames"]
+__all__ = ["FRAME_SUFFIXES", "Frame", "frame_range", "read_frames", "select_frames"]
 
 #: Suffixes of the files that :func:`read_frames` takes from a directory, sorted by name.
 FRAME_SUFFIXES = (".ply", ".obj", ".off", ".glb", ".gltf", ".xyz", ".pts", ".npz")
 _MESHES = (".obj", ".off", ".glb", ".gltf")
 
 
-def read_frames(inputs) -> list:
+class Frame:
+    """One frame of a sequence, read when called: ``frame()`` -> ``(name, V_or_P, F_or_None, N_or_None)``.
+
+    Parameters
+    ----------
+    read : callable
+        Reads the frame (no arguments).
+    correspondence : bool
+        See :attr:`correspondence`.
+
+    Attributes
+    ----------
+    correspondence : bool
+        Whether every frame of its sequence is a mesh with the same faces and
+        vertex order (an NPZ sequence, a baked animation): vertex ``i`` is the
+        same material point in every frame.
+    """
+
+    def __init__(self, read, correspondence: bool = False):
+        self._read, self.correspondence = read, bool(correspondence)
+
+    def __call__(self):
+        return self._read()
+
+
+def frame_range(text: str) -> slice:
+    """Parse ``--frames START:STOP:STEP`` (Python slice syntax, every part optional) into a slice.
+
+    Parameters
+    ----------
+    text : str
+        ``START:STOP:STEP`` or ``START:STOP``; negative values count from the end.
+
+    Returns
+    -------
+    slice
+
+    Raises
+    ------
+    ValueError
+        No colon, a part that is not an integer, a STEP below 1.
+
+    Examples
+    --------
+    >>> frame_range("2:10:2"), frame_range("5:"), frame_range("::3")
+    (slice(2, 10, 2), slice(5, None, None), slice(None, None, 3))
+    """
+    parts = str(text).split(":")
+    try:
+        if not 1 <= len(parts) <= 3 or len(parts) == 1:
+            raise ValueError
+        values = [int(p) if p.strip() else None for p in parts]
+    except ValueError:
+        fail("frame_range", "START:STOP:STEP with integers, each optional (e.g. 0:24:2, 5:, ::3)", f"'{text}'")
+    values += [None] * (3 - len(values))
+    if values[2] is not None and values[2] < 1:
+        fail("frame_range", "a STEP of at least 1", f"'{text}'")
+    return slice(*values)
+
+
+def select_frames(frames: list, selection: slice | None, what: str = "select_frames") -> list:
+    """The frames a slice keeps (``None``: all).
+
+    Parameters
+    ----------
+    frames : list
+        Frames (or captures, or reference frames).
+    selection : slice or None
+    what : str
+        Who asks, for the message.
+
+    Returns
+    -------
+    list
+
+    Raises
+    ------
+    ValueError
+        If the selection keeps no frame.
+    """
+    if selection is None:
+        return list(frames)
+    kept = list(frames)[selection]
+    if not kept:
+        fail(what, f"a selection that keeps at least one of the {len(frames)} frames",
+             f"{selection.start}:{selection.stop}:{selection.step} keeps none")
+    return kept
+
+
+def read_frames(inputs, *, animation: str | None = None, fps: float = 24.0) -> list:
     """List the frames of a sequence without reading them (they are read one at a time).
 
     Parameters
@@ -35,11 +124,17 @@ def read_frames(inputs) -> list:
         point-cloud files (any suffix :func:`~mi_loop.io.points.load_oriented_points`
         reads), directories (their files with a suffix in :data:`FRAME_SUFFIXES`,
         sorted by name; hidden files skipped) or glob patterns such as
-        ``'scan_*.ply'`` (sorted; ``.txt`` matches count too).
+        ``'scan_*.ply'`` (sorted; ``.txt`` matches count too). With
+        ``animation``: one animated glTF/GLB file.
+    animation : str, optional
+        Bake this animation of the glTF/GLB (skinning or node animation,
+        :func:`mi_loop.io.animation.bake_animation`) into mesh frames.
+    fps : float
+        Frames per second of the baked animation.
 
     Returns
     -------
-    list of callables
+    list of Frame
         ``frames[t]()`` reads frame ``t`` and returns ``(name, V_or_P, F_or_None, N_or_None)``:
         a mesh's vertices and faces, or a point cloud's points and normals
         (None when the file has none).
@@ -60,6 +155,8 @@ def read_frames(inputs) -> list:
     ...     [frame()[0] for frame in frames]
     ['a.xyz', 'b.xyz']
     """
+    if animation is not None:
+        return _animation(inputs, animation, fps)
     paths = []
     for item in inputs:
         p = Path(item)
@@ -80,7 +177,7 @@ def read_frames(inputs) -> list:
         fail("read_frames", "at least one frame file", f"none in {[str(i) for i in inputs]}")
     if len(paths) == 1 and paths[0].suffix.lower() == ".npz":
         return _npz_sequence(paths[0])
-    return [_reader(p) for p in paths]
+    return [Frame(_reader(p)) for p in paths]
 
 
 def _npz_sequence(path: Path) -> list:
@@ -101,7 +198,20 @@ def _npz_sequence(path: Path) -> list:
         fail("read_frames", f"{want} in '{path}', with T > 0", f"vertices of shape {Vs.shape}")
     if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
         fail("read_frames", f"{want} in '{path}'", f"faces of shape {F.shape} and dtype {F.dtype}")
-    return [(lambda t=t: (f"{path.stem}[{t}]", Vs[t], F, None)) for t in range(len(Vs))]
+    return [Frame(lambda t=t: (f"{path.stem}[{t}]", Vs[t], F, None), correspondence=True) for t in range(len(Vs))]
+
+
+def _animation(inputs, animation: str, fps: float) -> list:
+    from mi_loop.io.animation import bake_animation
+
+    paths = [Path(p) for p in inputs]
+    if len(paths) != 1 or paths[0].suffix.lower() not in (".glb", ".gltf"):
+        fail("read_frames --animation", "one animated glTF/GLB file", f"{[str(p) for p in paths]}")
+    if not paths[0].is_file():
+        fail("read_frames --animation", "an existing glTF/GLB file", f"'{paths[0]}': no such file")
+    baked = bake_animation(paths[0], animation, fps=fps)
+    return [Frame(lambda t=t: (baked.names[t], baked.vertices[t], baked.faces, None), correspondence=True)
+            for t in range(len(baked.vertices))]
 
 
 def _reader(p: Path):
