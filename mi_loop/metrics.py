@@ -8,8 +8,13 @@ only prefilters candidate triangles (no approximation).
 - :func:`two_sided`: mean / RMS / Hausdorff relative to the target's bounding-box
   diagonal, both directions (thesis Fig. 6.9 convention).
 - :func:`nps_metrics`: the Neural Parametric Surfaces protocol (P2S, HD, NAE).
+- :func:`flipped_fraction`: area of a surface facing against its target (folds).
+- :func:`attach` and :func:`drift`: correspondence drift against a target
+  sequence in correspondence (the same barycentric point followed over time).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,7 +23,7 @@ from mi_loop.mesh.checks import check_points, check_triangles
 from mi_loop.mesh.geometry import face_normals
 from mi_loop.mesh.sampling import closest_points, sample_surface, surface_distances
 
-__all__ = ["nps_metrics", "two_sided"]
+__all__ = ["Attachment", "attach", "drift", "flipped_fraction", "nps_metrics", "two_sided"]
 
 
 def _stats(d, scale):
@@ -142,3 +147,169 @@ def nps_metrics(mesh_fit, mesh_target, n: int = 30_000, seed: int = 0):
             "p2s_fit_to_target": float(d_ft.mean()), "p2s_target_to_fit": float(d_tf.mean()),
             "hd_fit_to_target": float(d_ft.max()), "hd_target_to_fit": float(d_tf.max()),
             "scale": float(scale), "n": int(n)}
+
+
+def flipped_fraction(V_fit, F_fit, target, F_target=None, N_target=None, radius: float | None = None) -> float:
+    """Share of a surface's area whose normal points against the nearest part of the target.
+
+    A fold (the surface turned over on itself) shows as such area. Against a
+    target mesh every triangle of the fitted surface is compared with the
+    nearest target triangle; near the target's sharp edges the nearest face
+    can be the neighbour across the edge, so a faceted target gives a small
+    non-zero floor. Against oriented points (a partial scan) only triangles
+    within ``radius`` of a point count as flipped or not; the rest of the
+    surface (what the scan never saw) counts as not flipped, and the share is
+    still of the whole area.
+
+    Parameters
+    ----------
+    V_fit, F_fit : (n, 3) float and (m, 3) int NumPy arrays
+        Dense mesh of the fitted surface (consistently oriented).
+    target : (k, 3) float NumPy array
+        Target vertices (with ``F_target``) or points (with ``N_target``).
+    F_target : (l, 3) int NumPy array, optional
+        Target triangles.
+    N_target : (k, 3) float NumPy array, optional
+        Normals of target points (without ``F_target``).
+    radius : float, optional
+        Largest distance from a triangle's centroid to a target point for it
+        to be compared (points only; default: 3x the median nearest-neighbour
+        spacing of the points).
+
+    Returns
+    -------
+    float
+        In [0, 1].
+
+    Raises
+    ------
+    ValueError
+        Neither ``F_target`` nor ``N_target``, or arrays of the wrong shape.
+
+    Examples
+    --------
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> F = np.array([[0, 1, 2], [1, 3, 2]])
+    >>> flipped_fraction(V, F, V, F), flipped_fraction(V, F[:, ::-1], V, F)
+    (0.0, 1.0)
+    """
+    from scipy.spatial import cKDTree
+
+    V_fit, F_fit = check_triangles(V_fit, F_fit, "flipped_fraction", "fitted")
+    n = np.cross(V_fit[F_fit[:, 1]] - V_fit[F_fit[:, 0]], V_fit[F_fit[:, 2]] - V_fit[F_fit[:, 0]])
+    area = np.linalg.norm(n, axis=1)
+    centroids = V_fit[F_fit].mean(1)
+    if F_target is not None:
+        target, F_target = check_triangles(target, F_target, "flipped_fraction", "target")
+        _, _, face = closest_points(target, F_target, centroids)
+        flipped = np.einsum("ij,ij->i", n, face_normals(target, F_target)[face]) < 0
+    elif N_target is not None:
+        target = check_points(target, "flipped_fraction", "target")
+        N_target = check_points(N_target, "flipped_fraction", "target normals")
+        if len(N_target) != len(target):
+            fail("flipped_fraction", f"one normal per target point ({len(target)})", f"{len(N_target)} normals")
+        tree = cKDTree(target)
+        if radius is None:
+            radius = 3.0 * float(np.median(tree.query(target, k=2)[0][:, 1]))
+        d, i = tree.query(centroids)
+        flipped = (d <= radius) & (np.einsum("ij,ij->i", n, N_target[i]) < 0)
+    else:
+        fail("flipped_fraction", "target faces F_target or target normals N_target", "neither")
+    total = area.sum()
+    return float(area[flipped].sum() / total) if total > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """Points attached to a target mesh: a triangle and barycentric coordinates each (:func:`attach`).
+
+    Attributes
+    ----------
+    face : (k,) int64 NumPy array
+        Target triangle of each point.
+    bary : (k, 3) float64 NumPy array
+        Barycentric coordinates in it (non-negative, summing to 1).
+    F : (m, 3) int64 NumPy array
+        The target's triangles (shared by every frame of the sequence).
+    """
+
+    face: np.ndarray
+    bary: np.ndarray
+    F: np.ndarray
+
+    def points(self, V) -> np.ndarray:
+        """The attached points on a mesh with the target's connectivity and vertices ``V``: ``(k, 3)``."""
+        return np.einsum("kj,kjd->kd", self.bary, np.asarray(V, dtype=np.float64)[self.F[self.face]])
+
+
+def attach(points, V, F) -> Attachment:
+    """Attach points to their nearest points on a triangle mesh (triangle and barycentric coordinates).
+
+    Parameters
+    ----------
+    points : (k, 3) float NumPy array
+        Points to attach (e.g. the limit points of the control vertices at frame 0).
+    V, F : (n, 3) float and (m, 3) int NumPy arrays
+        The target mesh (e.g. the clean frame 0 of a sequence in correspondence).
+
+    Returns
+    -------
+    Attachment
+        Its :meth:`~Attachment.points` on ``V`` is the nearest points themselves.
+
+    Examples
+    --------
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); F = np.array([[0, 1, 2]])
+    >>> a = attach(np.array([[0.25, 0.25, 1.0]]), V, F)
+    >>> a.bary.round(6).tolist(), a.points(2 * V).round(6).tolist()
+    ([[0.5, 0.25, 0.25]], [[0.5, 0.5, 0.0]])
+    """
+    V, F = check_triangles(V, F, "attach", "target")
+    points = check_points(points, "attach")
+    _, C, face = closest_points(V, F, points)
+    a, b, c = (V[F[face, k]] for k in range(3))
+    v0, v1, v2 = b - a, c - a, C - a
+    d00, d01, d11 = (np.einsum("ij,ij->i", x, y) for x, y in ((v0, v0), (v0, v1), (v1, v1)))
+    d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    ok = np.abs(den) > 1e-300
+    w1 = np.where(ok, (d11 * d20 - d01 * d21) / np.where(ok, den, 1.0), 0.0)
+    w2 = np.where(ok, (d00 * d21 - d01 * d20) / np.where(ok, den, 1.0), 0.0)
+    bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=1), 0.0, None)
+    bary /= bary.sum(1, keepdims=True)
+    return Attachment(face.astype(np.int64), bary, F)
+
+
+def drift(points, attachment: Attachment, V) -> dict:
+    """Correspondence drift: distance from each point to its attached point on a later frame.
+
+    Parameters
+    ----------
+    points : (k, 3) float NumPy array
+        The same points at frame ``t`` (e.g. control-vertex limit points of the fit at ``t``).
+    attachment : Attachment
+        Their attachment at frame 0 (:func:`attach`).
+    V : (n, 3) float NumPy array
+        Target vertices at frame ``t`` (the attachment's connectivity).
+
+    Returns
+    -------
+    dict
+        ``mean`` and ``p95`` of the distances relative to frame ``t``'s
+        bounding-box diagonal, and ``max``.
+
+    Examples
+    --------
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); F = np.array([[0, 1, 2]])
+    >>> a = attach(np.array([[0.0, 0.0, 0.0]]), V, F)
+    >>> round(float(drift(np.array([[0.1, 0.0, 0.0]]), a, V)["mean"] * np.sqrt(2)), 6)
+    0.1
+    """
+    points = check_points(points, "drift")
+    V = check_points(V, "drift", "target vertices")
+    if len(points) != len(attachment.face):
+        fail("drift", f"{len(attachment.face)} points (as attached)", f"{len(points)}")
+    used = V[np.unique(attachment.F)]
+    diag = float(np.linalg.norm(used.max(0) - used.min(0)))
+    d = np.linalg.norm(points - attachment.points(V), axis=1) / diag
+    return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max())}

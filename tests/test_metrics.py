@@ -102,3 +102,51 @@ def test_errors():
         two_sided(V, F, np.zeros((0, 3)), F)
     with pytest.raises(ValueError, match=r"two_sided\(\): expected target face indices in \[0, 2\), got face 0"):
         two_sided(V, F, V[:2], F)
+
+
+# ---------------------------------------------------------------- folds and correspondence drift
+def test_flipped_fraction_is_the_area_of_the_reversed_part():
+    """A grid with the faces over x < 0.25 reversed: a quarter of the area faces the wrong way."""
+    from mi_loop.metrics import flipped_fraction
+
+    V, F = _grid(20)
+    left = V[F].mean(1)[:, 0] < 0.25
+    G = F.copy()
+    G[left] = G[left][:, ::-1]
+    assert flipped_fraction(V, G, V, F) == pytest.approx(0.25, abs=1e-9)
+    fine, _ = _grid(100)
+    P = fine[fine[:, 0] > 0.5] + [0.0, 0.0, 0.005]        # points over the right half only, normals +z
+    N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    assert flipped_fraction(V, G, P, N_target=N) == 0.0     # the reversed part is not where the points are
+    assert flipped_fraction(V, F[:, ::-1], P, N_target=N) == pytest.approx(0.5, abs=0.06)
+
+
+def test_flipped_fraction_needs_faces_or_normals():
+    from mi_loop.metrics import flipped_fraction
+
+    V, F = _grid(2)
+    with pytest.raises(ValueError, match=r"^flipped_fraction\(\): expected target faces F_target or target "
+                                         r"normals N_target, got neither$"):
+        flipped_fraction(V, F, V)
+
+
+def test_drift_follows_the_barycentric_point_of_a_deforming_mesh():
+    """Attached points follow an affine motion exactly (drift 0); moved points drift by what they moved."""
+    from mi_loop.metrics import attach, drift
+
+    V, F = sphere_mesh(1.0, 3)
+    rng = np.random.default_rng(0)
+    Q = V[F[:40]].mean(1) * 1.001                            # near the surface, off the vertices
+    a = attach(Q, V, F)
+    A = np.array([[1.2, 0.1, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 1.1]])
+    Vt = V @ A.T + [0.3, -0.1, 0.2]
+    on = a.points(V)
+    assert np.linalg.norm(on - Q, axis=1).max() < 2e-3      # the nearest points
+    assert drift(on @ A.T + [0.3, -0.1, 0.2], a, Vt)["max"] < 1e-12
+    shift = rng.normal(size=(len(Q), 3))
+    shift *= 0.05 / np.linalg.norm(shift, axis=1, keepdims=True)
+    d = drift(on @ A.T + [0.3, -0.1, 0.2] + shift, a, Vt)
+    diag = np.linalg.norm(np.ptp(Vt, axis=0))
+    assert d["mean"] == pytest.approx(0.05 / diag, rel=1e-9) and d["p95"] == pytest.approx(0.05 / diag, rel=1e-9)
+    with pytest.raises(ValueError, match=r"^drift\(\): expected 40 points \(as attached\), got 39$"):
+        drift(on[:39], a, Vt)
