@@ -100,6 +100,7 @@ class LimitOperator:
         self.face_ids, self.uv = check_samples(face_ids, uv, len(h.levels[0].F), "LimitOperator")
         self.n = int(n_vertices)
         self.n_samples = len(self.face_ids)
+        self.derivatives = bool(derivatives)
         names = DERIVATIVES if derivatives else (None,)
         self._rows = dict(zip(names, level_rows(h, self.face_ids, self.uv, names)))
         self._S = h.composed()

@@ -152,8 +152,12 @@ def _fit_sequence(args, log) -> None:
         raise ValueError(expected("fit-sequence --poisson-template", "no --template (it builds the template)",
                                   f"--template '{args.template}'"))
     check_variant(args.variant, "fit-sequence")
+    if args.animation is None and args.fps != 24.0:
+        raise ValueError(expected("fit-sequence --fps", "--animation (the frame rate of a baked animation)",
+                                  f"--fps {args.fps:g} without it"))
     sequence_job.run(args.frames, args.output, options, template=args.template, resume=args.resume,
-                     variant=args.variant, log=log)
+                     variant=args.variant, log=log, images=args.images, emitters=args.emitters,
+                     reference=args.reference, frames=args.frame_range, animation=args.animation, fps=args.fps)
 
 
 def _fit_images(args, log) -> None:

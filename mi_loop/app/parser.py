@@ -19,7 +19,7 @@ __all__ = ["FLAGS", "build_parser", "flag"]
 
 #: Option field -> its flag, where the two names differ.
 FLAGS = {"n_vertices": "--vertices", "max_iterations": "--iterations", "geo_iterations": "--iterations",
-         "joint_iterations": "--image-iterations", "resolution": "--res", "n_points": "--points",
+         "resolution": "--res", "n_points": "--points",
          "geometric": "--image-only", "image": "--no-image"}
 
 SAMPLES_HELP = ("limit samples of the distance terms: 'level1' (default) the points of a level-1 "
@@ -158,32 +158,76 @@ def _sequence_parser(sub, common) -> None:
     o = SequenceOptions
     p = sub.add_parser("fit-sequence", parents=[common], help="fit one control mesh to every frame of a sequence")
     p.add_argument("frames", type=Path, nargs="+",
-                   help="an NPZ (vertices (T,V,3), faces), or frame files / directories / quoted globs")
+                   help="an NPZ (vertices (T,V,3), faces), or frame files / directories / quoted globs: "
+                        "meshes, or point clouds with or without normals (PLY/XYZ/NPZ); or one animated "
+                        "glTF/GLB with --animation")
     p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    p.add_argument("--images", nargs="+", metavar="CAPTURE",
+                   help="one transforms.json per frame (files, directories, or quoted globs; sorted): "
+                        "the frame's calibrated photos with masks, fitted together with the geometry")
+    p.add_argument("--emitters", type=Path, metavar="F",
+                   help="the photos' lighting as a Mitsuba XML file of emitters (default: a constant "
+                        "environment of radiance 1)")
+    p.add_argument("--reference", type=Path, metavar="NPZ",
+                   help="clean meshes in correspondence (vertices (T,V,3), faces), one per frame: "
+                        "metrics.csv then measures distances, folds and drift against them")
+    p.add_argument("--frames", dest="frame_range", type=_frame_range, metavar="START:STOP:STEP",
+                   help="fit only these frames (Python slice syntax; applies to the captures and the "
+                        "reference too)")
+    p.add_argument("--animation", metavar="NAME",
+                   help="bake this animation of a skinned glTF/GLB into the frames")
+    p.add_argument("--fps", type=float, default=24.0,
+                   help="frame rate of the baked --animation (default %(default)s)")
     _template_options(p, o)
     p.add_argument("--poisson-template", action="store_true",
                    help="build the automatic template by screened Poisson even when the first frame is a mesh")
-    p.add_argument("--views", type=int, default=o.views, help="cameras around the subject (default %(default)s)")
+    p.add_argument("--views", type=int, default=o.views,
+                   help="cameras around the subject for mesh frames without --images (default %(default)s)")
     p.add_argument("--views-per-iteration", type=int, metavar="K",
-                   help=f"random views rendered per iteration, at most --views (default {o.views_per_iteration}, "
+                   help=f"views rendered per image refresh, at most --views (default {o.views_per_iteration}, "
                         "or --views if fewer)")
+    p.add_argument("--image-every", type=int, metavar="N", default=o.image_every,
+                   help="iterations between image refreshes; the latest image gradient is added to every "
+                        "step (default %(default)s)")
     p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,
-                   help="image size (default %(default)s)")
+                   help="image size of the rendered rig (default %(default)s; photos keep theirs)")
     p.add_argument("--spp", type=int, default=o.spp, help="samples per pixel of the renders (default %(default)s)")
-    p.add_argument("--beta", type=float, default=o.beta, help="image-loss weight (default %(default)s)")
-    p.add_argument("--alpha", type=float, default=o.alpha, help="ARAP weight (default %(default)s)")
+    p.add_argument("--level", type=int, default=o.level,
+                   help="tessellation level of the rendered limit surface (default %(default)s)")
+    p.add_argument("--beta", type=float, default=o.beta,
+                   help="image weight relative to the geometric gradient (default %(default)s)")
+    p.add_argument("--seen", type=float, default=o.seen,
+                   help="image weight where the data covers the surface, relative to where it does not "
+                        "(default %(default)s)")
+    p.add_argument("--image-smooth", type=float, default=o.image_smooth,
+                   help="lambda of the (I + lambda L)^-1 smoothing of the image gradient (default %(default)s; "
+                        "0: off)")
+    p.add_argument("--alpha", type=float, default=o.alpha,
+                   help="ARAP weight relative to the previous frame (default %(default)s)")
+    p.add_argument("--alpha-rest", type=float, default=o.alpha_rest,
+                   help="ARAP weight relative to the template: against folds (default %(default)s; 0: off)")
+    p.add_argument("--fold", type=float, default=o.fold,
+                   help="weight of the barrier on limit normals that turned by more than 60 degrees since the "
+                        "previous frame (default %(default)s; 0: off)")
+    p.add_argument("--reach", type=int, default=o.reach,
+                   help="IMLS reaches h0 * 2^REACH from a sample; farther ones are not pulled "
+                        "(default %(default)s)")
     p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
     p.add_argument("--cover", type=float, default=o.cover,
                    help="coverage weight: data points pull their nearest samples (default %(default)s; 0: off)")
     p.add_argument("--loss", choices=["l1", "l2"], default=o.loss,
-                   help="pixel loss of the image term: mean absolute (l1, default) or mean squared (l2) "
+                   help="pixel loss of the rendered rig: mean absolute (l1, default) or mean squared (l2) "
                         "difference between the render and the target render")
     p.add_argument("--mode", choices=["shading", "silhouette"], default=o.mode,
-                   help="shaded images (default) or silhouettes only")
+                   help="shaded images (default) or silhouettes only, for the rendered rig")
     p.add_argument("--iterations", dest="geo_iterations", type=int, metavar="N", default=o.geo_iterations,
-                   help="geometric iterations per frame (default %(default)s)")
-    p.add_argument("--image-iterations", dest="joint_iterations", type=int, metavar="N", default=o.joint_iterations,
-                   help="iterations with the image term per frame (default %(default)s)")
+                   help="iterations per frame (default %(default)s)")
+    p.add_argument("--first-iterations", type=int, metavar="N", default=o.first_iterations,
+                   help="iterations of the first frame, from the template (default %(default)s)")
+    p.add_argument("--albedo-lr", type=float, default=o.albedo_lr,
+                   help="albedo step on the first frame (photos; default %(default)s)")
+    p.add_argument("--albedo-refine", type=float, default=o.albedo_refine,
+                   help="albedo step of later frames relative to --albedo-lr (default %(default)s; 0: kept)")
     p.add_argument("--points", dest="n_points", type=int, metavar="N", default=o.n_points,
                    help="points sampled on every mesh frame for the geometric terms (default %(default)s); "
                         "point-cloud frames are used as they are")
@@ -198,6 +242,15 @@ def _sequence_parser(sub, common) -> None:
     p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(", of the views and of the "
                                                                                 "frames' samples"))
     _variant(p)
+
+
+def _frame_range(text: str):
+    from mi_loop.io.frames import frame_range
+
+    try:
+        return frame_range(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
 
 
 def _images_parser(sub, common) -> None:

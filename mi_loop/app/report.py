@@ -146,42 +146,93 @@ def loss_plot(history: dict, title: str = "energy per iteration") -> np.ndarray:
     return figure_pixels(loss_figure(history, title))
 
 
-def drift_figure(frames, mean, rms):
-    """Per-frame error of a sequence: mean and RMS distance per frame, integer frame ticks.
+def drift_figure(frames, mean, rms, *, flipped=None, drift=None):
+    """Per-frame plots of a sequence: distances, and where measured the folds and the correspondence drift.
 
     Parameters
     ----------
     frames : (T,) int array-like
     mean, rms : (T,) float array-like
         Distances relative to the target's bounding-box diagonal.
+    flipped : (T,) float array-like, optional
+        Flipped area, % of the limit surface (NaN where not measured).
+    drift : (T,) float array-like, optional
+        Mean correspondence drift relative to the diagonal (NaN where not measured).
 
     Returns
     -------
     matplotlib.figure.Figure
+        One panel per quantity that has a finite value, integer frame ticks.
     """
     from matplotlib.ticker import MaxNLocator
 
-    fig = agg_figure(6.4, 3.6)
-    ax = fig.add_subplot()
-    ax.plot(frames, mean, "o-", label="mean")
-    ax.plot(frames, rms, "s-", label="RMS")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_xlabel("frame")
-    ax.set_ylabel("distance to target / bbox diagonal")
-    ax.set_title("per-frame error (drift)")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
+    panels = [("distance to target / bbox diagonal", "per-frame error", [("mean", mean, "o-"), ("RMS", rms, "s-")])]
+    if flipped is not None and np.isfinite(np.asarray(flipped, dtype=float)).any():
+        panels.append(("flipped area, % of the surface", "folds", [("flipped", flipped, "o-")]))
+    if drift is not None and np.isfinite(np.asarray(drift, dtype=float)).any():
+        panels.append(("drift / bbox diagonal", "correspondence drift (mean)", [("drift", drift, "o-")]))
+    fig = agg_figure(6.4, 2.6 * len(panels) + 0.6)
+    axes = fig.subplots(len(panels), 1, squeeze=False, sharex=True)[:, 0]
+    for ax, (ylabel, title, curves) in zip(axes, panels):
+        for label, values, style in curves:
+            ax.plot(frames, values, style, label=label, markersize=4)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
+        if len(curves) > 1:
+            ax.legend(fontsize=8)
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[-1].set_xlabel("frame")
     fig.tight_layout()
     return fig
 
 
-def strip_figure(strips):
+def crop_to_content(image: np.ndarray, *, halves: int = 1, pad: float = 0.08) -> np.ndarray:
+    """Crop a picture of ``halves`` side-by-side panels to the box where any panel differs from its corner.
+
+    Parameters
+    ----------
+    image : (h, w, 3) float NumPy array
+        ``halves`` panels of equal width (a target and a fit).
+    halves : int
+        Panels; one box (the union over panels) is cut from each.
+    pad : float
+        Margin around the box, relative to its larger side.
+
+    Returns
+    -------
+    (h', halves * w', 3) float NumPy array
+        The image itself where nothing differs from the background.
+
+    Examples
+    --------
+    >>> im = np.zeros((10, 20, 3)); im[4:6, 2:4] = 1; im[4:6, 12:14] = 1
+    >>> crop_to_content(im, halves=2, pad=0).shape
+    (2, 4, 3)
+    """
+    w = image.shape[1] // halves
+    panels = [image[:, k * w:(k + 1) * w] for k in range(halves)]
+    busy = np.zeros(panels[0].shape[:2], dtype=bool)
+    for p in panels:
+        busy |= np.abs(p - p[0, 0]).max(axis=2) > 0.02
+    if not busy.any():
+        return image
+    ys, xs = np.nonzero(busy)
+    m = int(pad * max(np.ptp(ys) + 1, np.ptp(xs) + 1))
+    y0, y1 = max(0, ys.min() - m), min(busy.shape[0], ys.max() + m + 1)
+    x0, x1 = max(0, xs.min() - m), min(busy.shape[1], xs.max() + m + 1)
+    return np.concatenate([p[y0:y1, x0:x1] for p in panels], axis=1)
+
+
+def strip_figure(strips, label: str = "target (left), fit (right)"):
     """Target and fit side by side for a few frames, one row each.
 
     Parameters
     ----------
     strips : list of ``(frame, mean, image)``
-        ``image`` from :func:`side_by_side`.
+        ``image`` from :func:`side_by_side` (or a photo next to a render of the fit).
+    label : str
+        What the two halves show, in each row's title.
 
     Returns
     -------
@@ -192,7 +243,7 @@ def strip_figure(strips):
     for ax, (t, mean, image) in zip(axes[:, 0], strips):
         ax.imshow(image)
         ax.set_axis_off()
-        ax.set_title(f"frame {t}: target (left), fit (right); mean {mean:.1e}", fontsize=8)
+        ax.set_title(f"frame {t}: {label}; mean {mean:.1e}", fontsize=8)
     fig.tight_layout()
     return fig
 

@@ -75,13 +75,18 @@ class Coverage:
         self._n = upload_vec(mi.Vector3f, self.normals)
         self.nearest = None
 
-    def update(self, Q):
+    def update(self, Q, normals=None):
         """Find each data point's nearest sample (NumPy/SciPy) and upload the indices.
 
         Parameters
         ----------
         Q : (k, 3) float NumPy array
             Current sample positions.
+        normals : (k, 3) float NumPy array, optional
+            The surface's normals at the samples. Given, a data point takes the
+            nearest of its 8 nearest samples whose normal is within 90 degrees
+            of its own (the nearest one when none is): a point on the near
+            side of a thin part does not pull the far side.
 
         Notes
         -----
@@ -89,7 +94,14 @@ class Coverage:
         """
 
         Q = check_points(Q, "Coverage.update", "samples")
-        self.nearest = cKDTree(Q).query(self.points, workers=-1)[1]
+        if normals is None:
+            self.nearest = cKDTree(Q).query(self.points, workers=-1)[1]
+        else:
+            k = min(8, len(Q))
+            idx = cKDTree(Q).query(self.points, k=k, workers=-1)[1].reshape(len(self.points), k)
+            facing = np.einsum("ijd,id->ij", np.asarray(normals, dtype=np.float64)[idx], self.normals) > 0
+            first = np.where(facing.any(1), facing.argmax(1), 0)
+            self.nearest = idx[np.arange(len(idx)), first]
         self.n_samples = len(Q)
         self._idx = IndexMap(self.nearest, len(Q))   # deterministic reverse pass
 

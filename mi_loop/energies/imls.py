@@ -132,13 +132,18 @@ class IMLS:
         self._n = upload_vec(mi.Vector3f, self.normals)
         self.n_samples = None
 
-    def update(self, Q):
+    def update(self, Q, normals=None):
         """Recompute each sample's radius and neighbour list (NumPy/SciPy), upload them.
 
         Parameters
         ----------
         Q : (k, 3) float numpy array or mi.Point3f (k)
             Current sample positions (gradients, if any, are ignored).
+        normals : (k, 3) float numpy array, optional
+            The surface's normals at the samples. Given, a data point counts
+            for a sample only if its normal is within 90 degrees of the
+            sample's: the near side of a thin part does not pull the far side
+            onto itself (partial scans, where the far side has no points).
 
         Notes
         -----
@@ -165,6 +170,12 @@ class IMLS:
         shrink = (d[:, K] < h) & (d[:, K] > d_m)
         h[shrink] = d[shrink, K]
         valid = (d[:, :K] < h[:, None]) & (idx[:, :K] < len(self.points))
+        if normals is not None:
+            normals = check_points(normals, "IMLS.update", "sample normals")
+            if len(normals) != len(Q):
+                fail("IMLS.update", f"one normal per sample ({len(Q)})", f"{len(normals)}")
+            facing = np.einsum("kjd,kd->kj", self.normals[np.minimum(idx[:, :K], len(self.points) - 1)], normals)
+            valid &= facing > 0
         self.radius, self.growths = h, g
         self.neighbors, self.valid = np.where(valid, idx[:, :K], 0), valid
         self.n_isolated = int((~valid.any(1)).sum())

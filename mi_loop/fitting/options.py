@@ -180,29 +180,53 @@ class SequenceOptions:
     ----------
     alpha : float
         ARAP weight (relative to the previous frame's fit).
+    alpha_rest : float
+        ARAP weight relative to the template (frame 0's start): keeps the cage
+        from drifting into folds over a long sequence; 0: off.
+    fold : float
+        Weight of the barrier on limit-sample normals that turned by more than
+        60 degrees since the previous frame (folds); 0: off.
     beta : float
-        Image-loss weight.
+        Image weight, relative to the geometric gradient (the image gradient is
+        scaled to its RMS at each frame's first render; see
+        :mod:`mi_loop.fitting.sequence`).
+    seen : float
+        Image weight where the data supports the surface, relative to where it
+        does not (in [0, 1]): images hold what depth never saw and do not pull
+        accurate geometry off.
+    image_smooth : float
+        ``lambda`` of the ``(I + lambda L)^-1`` smoothing of the image gradient (0: off).
+    reach : int
+        IMLS reaches ``h0 2^reach`` from a sample (``max_growths``); farther
+        samples are not pulled (a side the depth cameras never saw).
     views : int
-        Cameras in the rig.
+        Cameras in the rig (mesh frames without photos).
     views_per_iteration : int
-        Random views rendered per iteration, in ``[1, views]``.
+        Views rendered per image refresh, in ``[1, views]`` (a seeded sweep of all views).
+    image_every : int
+        Iterations between image refreshes (the latest image gradient is added to every step).
     resolution, spp, target_spp : int
-        Image size; samples per pixel of the differentiable and of the target renders.
+        Image size of the rig (photos keep theirs); samples per pixel of the
+        differentiable and of the target renders.
     level : int
         Tessellation level (0..6) of the rendered limit surface.
     loss : {'l1', 'l2'}
     mode : {'shading', 'silhouette'}
+        Of the rig's renders (photos are compared as they are).
     geometric, image : bool
-        IMLS + coverage + ARAP terms (False: image only, ARAP kept); the image term.
-    geo_iterations, joint_iterations : int
-        Geometric iterations per frame (the first half with stiff ARAP), then
-        iterations with the image term.
-    joint_lr_scale : float
-        Step of the joint iterations relative to the geometric ones (> 0).
+        IMLS + coverage terms (False: image only, ARAP kept); the image term.
+    geo_iterations : int
+        Iterations per frame (the first half with stiff ARAP).
+    first_iterations : int
+        Iterations of the first frame (from the template).
     stiff_factor : float
-        ARAP weight factor for the first half of the geometric iterations.
+        ARAP weight factor for the first half of the iterations.
     cover : float
         Weight of the coverage term.
+    albedo_lr : float
+        Adam step of the per-control-vertex albedo on the first frame (photos only).
+    albedo_refine : float
+        Albedo step of the later frames relative to ``albedo_lr`` (0: kept from the first frame).
     seed : int
         Seed of the views, the frame samples and the automatic template.
     n_vertices : int
@@ -218,9 +242,15 @@ class SequenceOptions:
     """
 
     alpha: float = 0.01
-    beta: float = 1.0
+    alpha_rest: float = 0.01
+    fold: float = 1.0
+    beta: float = 10.0
+    seen: float = 0.1
+    image_smooth: float = 10.0
+    reach: int = 2
     views: int = 20
     views_per_iteration: int = 2
+    image_every: int = 6
     resolution: int = 96
     spp: int = 4
     target_spp: int = 32
@@ -230,10 +260,11 @@ class SequenceOptions:
     geometric: bool = True
     image: bool = True
     geo_iterations: int = 200
-    joint_iterations: int = 8
-    joint_lr_scale: float = 0.05
+    first_iterations: int = 400
     stiff_factor: float = 100.0
     cover: float = COVER
+    albedo_lr: float = 0.02
+    albedo_refine: float = 0.1
     seed: int = 0
     n_vertices: int = N_VERTICES
     samples: str = SAMPLES
@@ -242,14 +273,18 @@ class SequenceOptions:
     deterministic: bool = False
 
     def __post_init__(self):
-        _check(self, {"alpha": WEIGHT, "beta": WEIGHT, "cover": WEIGHT, "stiff_factor": WEIGHT,
-                      "joint_lr_scale": (_positive_real, "a finite number > 0"),
-                      "views": COUNT, "resolution": COUNT, "spp": COUNT, "target_spp": COUNT,
+        _check(self, {"alpha": WEIGHT, "alpha_rest": WEIGHT, "fold": WEIGHT, "beta": WEIGHT,
+                      "image_smooth": WEIGHT, "cover": WEIGHT,
+                      "stiff_factor": WEIGHT, "albedo_lr": WEIGHT, "albedo_refine": WEIGHT,
+                      "seen": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
+                      "reach": (lambda v: _is_int(v) and 0 <= v <= 10, "an integer in 0..10"),
+                      "image_every": COUNT, "first_iterations": COUNT, "views": COUNT,
+                      "resolution": COUNT, "spp": COUNT, "target_spp": COUNT,
                       "level": (lambda v: _is_int(v) and 0 <= v <= 6, "an integer in 0..6"),
                       "loss": (lambda v: v in LOSSES, f"one of {LOSSES}"),
                       "mode": (lambda v: v in IMAGE_MODES, f"one of {IMAGE_MODES}"),
                       "geometric": FLAG, "image": FLAG, "poisson_template": FLAG, "deterministic": FLAG,
-                      "geo_iterations": COUNT, "joint_iterations": COUNT, "seed": SEED,
+                      "geo_iterations": COUNT, "seed": SEED,
                       "n_vertices": N_VERTICES_RULE, "samples": SAMPLES_RULE, "n_points": COUNT})
         if not (_is_int(self.views_per_iteration) and 1 <= self.views_per_iteration <= self.views):
             raise OptionError("SequenceOptions", "views_per_iteration",
@@ -258,10 +293,17 @@ class SequenceOptions:
             raise OptionError("SequenceOptions", "geometric or image", "True (both terms are off: "
                               "nothing to fit)", False)
 
+    #: Fields of older versions, ignored when read back (the image term no longer ends the frame).
+    RETIRED = ("joint_iterations", "joint_lr_scale")
+
     @classmethod
     def from_dict(cls, values: dict) -> SequenceOptions:
-        """Options from :func:`dataclasses.asdict` output; fields it lacks (older files) get their defaults."""
+        """Options from :func:`dataclasses.asdict` output; older files' missing fields get their defaults.
+
+        Retired fields (:attr:`RETIRED`) are dropped; any other unknown key is an error.
+        """
         names = {f.name for f in fields(cls)}
+        values = {k: v for k, v in values.items() if k not in cls.RETIRED}
         unknown = sorted(set(values) - names)
         if unknown:
             raise OptionError("SequenceOptions", "every key", f"one of the fields {sorted(names)}", unknown)

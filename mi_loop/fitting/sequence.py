@@ -1,18 +1,42 @@
-"""Frame-by-frame fitting of one control mesh to a deforming sequence, with multi-view rendering.
+"""Frame-by-frame fitting of one control mesh to a deforming sequence: depth, meshes and photos together.
 
-Per frame ``t`` the control points minimise
+Per frame ``t`` the control points ``V`` take Adam steps on the sum of the gradients of
 
-    E_t = mean_j f_t(Q_j)^2 + alpha E_arap(V; V_{t-1}) / n + beta l_image,
+    E_t = mean_j f_t(Q_j)^2 + cover E_cover + alpha E_arap(V; V_{t-1}) / n
+          + alpha_rest E_arap(V; V_template) / n
+          + fold mean_j max(0, 1/2 - n_j . n_j^{t-1})^2 + image term,
 
-``f_t`` the IMLS function of frame ``t``, ARAP relative to the previous frame's
-fit (warm start), and ``l_image`` the mean L1 (or L2) pixel difference over a
-random subset of the rig's views between ``direct_projective`` renders of the
-limit surface (the ``loop_subdiv`` shape, exact limit normals) and renders of
-the target frame. Gradients of all terms accumulate into the same control
-points through the renderer, the limit operator and both geometric energies
-(one reverse pass for the geometric terms and one per rendered view, because
-Mitsuba's render releases the geometry's graph in its reverse pass). No file
-I/O here.
+``f_t`` the IMLS function of the frame's points (partial, noisy depth, or
+samples of a mesh frame), ``E_cover`` the coverage term, ARAP relative to the
+previous frame's fit (the warm start) and to the template (so that the cage
+cannot drift into folds over a long sequence), a barrier on limit normals
+that turned by more than 60 degrees since the previous frame's fit (a fold
+in the making), and the image term: mean L1
+between ``direct_projective`` renders of the limit surface (``loop_subdiv``,
+exact limit normals) and the frame's photos (:class:`PhotoTerm`, with a
+per-control-vertex albedo) or renders of a mesh frame (:class:`RenderedTerm`).
+
+The image term acts over the whole frame. Its gradient is refreshed every
+``options.image_every`` iterations (a render and its reverse pass cost ten
+times a geometric iteration) and added to every step's geometric gradient in
+between. It is balanced per control vertex:
+
+- ``k``, fixed at the frame's first refresh, scales the image gradient to the
+  RMS of the geometric gradient over the vertices the data supports, so that
+  ``beta`` is a relative weight whatever the units of the two losses;
+- the image gradient is smoothed, ``(I + lambda L)^-1 g`` with
+  ``lambda = options.image_smooth`` (a Sobolev gradient, as in Nicolet et
+  al. 2021): Adam normalises each coordinate's step, so unsmoothed Monte
+  Carlo noise would move vertices by full steps where depth does not hold them;
+- each vertex's image weight is ``beta k (seen + (1 - seen) (1 - s_i))``,
+  ``s_i`` in [0, 1] the data support at its limit point (1 within three
+  point spacings of a data point facing the same way, 0 beyond six): where depth sees the surface
+  the images count ``options.seen`` as much, where it does not they hold the
+  surface alone (with ARAP).
+
+IMLS reaches only ``h0 2^reach`` from each sample (:class:`~mi_loop.energies.imls.IMLS`
+``max_growths``): a sample on a side the depth cameras never saw is not
+pulled onto the seen side. No file I/O here.
 """
 from __future__ import annotations
 
@@ -23,52 +47,174 @@ import numpy as np
 from mi_loop.errors import FitError
 from mi_loop.fitting.options import SequenceOptions
 
-__all__ = ["SequenceOptions", "fit_frame"]   # SequenceOptions lives in mi_loop.fitting.options
+__all__ = ["PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
 
 
-def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOptions,
-              frame: int, lr: float, progress=None):
+def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
+    """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
+
+    With ``normals`` (at ``Q``) and ``data_normals``, only data points whose
+    normal is within 90 degrees of the point's count (of the 8 nearest): the
+    far side of a thin part is not supported by points on its near side.
+
+    Parameters
+    ----------
+    Q : (k, 3) float NumPy array
+        Points (control-vertex limit points).
+    tree : scipy.spatial.cKDTree
+        Of the data points.
+    radius : float
+        Full support within it.
+    normals, data_normals : (k, 3) and (N, 3) float NumPy arrays, optional
+
+    Returns
+    -------
+    (k,) float64 NumPy array
+
+    Examples
+    --------
+    >>> from scipy.spatial import cKDTree
+    >>> support(np.array([[0.0, 0, 0], [0.15, 0, 0], [1.0, 0, 0]]), cKDTree([[0.0, 0, 0]]), 0.1).round(6).tolist()
+    [1.0, 0.5, 0.0]
+    >>> support(np.zeros((1, 3)), cKDTree([[0.0, 0, 0]]), 0.1, np.array([[0.0, 0, 1]]), np.array([[0.0, 0, -1]]))
+    array([0.])
+    """
+    Q = np.asarray(Q, dtype=np.float64)
+    if normals is None:
+        d, _ = tree.query(Q, workers=-1)
+    else:
+        k = min(8, tree.n)
+        d, i = tree.query(Q, k=k, workers=-1)
+        d, i = d.reshape(len(Q), k), i.reshape(len(Q), k)
+        facing = np.einsum("qkd,qd->qk", data_normals[i], normals) > 0
+        d = np.where(facing, d, np.inf).min(axis=1)
+    return np.clip((2.0 * radius - d) / radius, 0.0, 1.0)
+
+
+class RenderedTerm:
+    """Image term against renders of a mesh frame (:class:`~mi_loop.render.multiview.Renderer`).
+
+    Parameters
+    ----------
+    renderer : Renderer
+        The sequence's rig (fixed cameras, unit-box units).
+    targets : list of mi.TensorXf
+        The frame's target renders.
+    """
+
+    def __init__(self, renderer, targets):
+        self.renderer, self.targets = renderer, targets
+        self.n_views = len(renderer.views)
+
+    def gradient(self, V, view_ids, seed: int):
+        """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box) over ``view_ids``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        x = mi.Float(np.asarray(V, dtype=np.float32).ravel())
+        dr.enable_grad(x)
+        loss = self.renderer.backward(x, view_ids, self.targets, seed=seed)
+        return np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3), loss
+
+
+class PhotoTerm:
+    """Image term against a frame's photos (:class:`~mi_loop.render.photo.PhotoRenderer`), with albedo.
+
+    The renderer works in the capture's units (its cameras and emitters); the
+    fit in the unit box, so the control points are mapped by ``norm`` and the
+    gradient back (``dL/dV = scale dL/dX``).
+
+    Parameters
+    ----------
+    renderer : PhotoRenderer
+        Scene of the frame's cameras and the capture's emitters.
+    norm : Normalisation
+        Unit box to capture units.
+    albedo : (n, 3) float NumPy array
+        Per-control-vertex linear albedo (updated in place of :attr:`albedo`).
+    albedo_lr : float
+        Adam step of the albedo (0: kept).
+    state : AdamUniform, optional
+        The albedo optimiser carried over from the previous frame.
+    """
+
+    def __init__(self, renderer, norm, albedo, albedo_lr: float, state=None):
+        from mi_loop.fitting.largesteps import AdamUniform
+
+        self.renderer, self.norm = renderer, norm
+        self.n_views = len(renderer.views)
+        self.albedo = np.asarray(albedo, dtype=np.float64).copy()
+        self.albedo_lr = float(albedo_lr)
+        self.opt = state if state is not None else AdamUniform(self.albedo, lr=max(self.albedo_lr, 1e-12),
+                                                               uniform=False)
+        self.opt.x, self.opt.lr = self.albedo.copy(), max(self.albedo_lr, 1e-12)
+
+    def gradient(self, V, view_ids, seed: int):
+        """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box); steps the albedo."""
+        import drjit as dr
+        import mitsuba as mi
+
+        x = mi.Float(np.asarray(self.norm.inverse(V), dtype=np.float32).ravel())
+        a = mi.Float(self.albedo.astype(np.float32).ravel())
+        dr.enable_grad(x, a)
+        losses = self.renderer.backward(x, a, view_ids, seed=seed)
+        g = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3) * self.norm.scale
+        if self.albedo_lr > 0:
+            g_a = np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)
+            self.albedo = np.clip(self.opt.step(g_a), 0.0, 1.0)
+            self.opt.x = self.albedo.copy()
+        return g, float(np.mean(losses))
+
+
+def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame: int, lr: float,
+              progress=None, *, rest=None, vertex_op=None, iterations: int | None = None):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
-    Adam on ``E_t`` (module docstring): ``options.geo_iterations`` steps of
-    the geometric terms, then ``options.joint_iterations`` steps that add the
-    image term over ``options.views_per_iteration`` random views per step.
+    Adam on the gradients of ``E_t`` (module docstring): ``iterations``
+    steps (default ``options.geo_iterations``), the first half with ARAP
+    ``options.stiff_factor`` times stiffer, the image gradient refreshed every
+    ``options.image_every`` steps.
 
     Parameters
     ----------
     x0 : (n, 3) float64 NumPy array
-        Start control points (the previous frame's fit), in normalised units;
+        Start control points (the previous frame's fit), in the unit box;
         also the ARAP rest shape.
     F : (m, 3) int64 NumPy array
         Control faces (one connectivity for the whole sequence).
     points, normals : (k, 3) float64 NumPy arrays or None
-        The frame's oriented points, normalised like ``x0``; None when
+        The frame's oriented points, in the unit box; None when
         ``options.geometric`` is False.
     op : LimitOperator
-        Limit samples of ``F`` for the distance terms (Dr.Jit; positions only suffice).
-    targets : list of mi.TensorXf or None
-        Target renders of every view (:meth:`Renderer.targets
-        <mi_loop.render.multiview.Renderer.targets>`); None without the image term.
-    renderer : Renderer or None
-        The sequence's renderer (fixed cameras); None without the image term.
+        Limit samples of ``F`` for the distance terms (positions only suffice).
+    image : PhotoTerm, RenderedTerm or None
+        The frame's image term; None without one.
     options : SequenceOptions
-        Weights, iteration counts, views per step, seed.
+        Weights, iteration counts, views per refresh, seed.
     frame : int
         Frame index: seeds the choice of views and the renders' samplers.
     lr : float
-        Largest Adam step (normalised units); the step starts from the warm
-        start's IMLS residual, capped by ``lr``.
+        Largest Adam step (unit box); the step starts from the warm start's
+        IMLS residual, capped by ``lr``.
     progress : callable, optional
         Called as ``progress(done, total)`` after every iteration.
+    rest : (n, 3) float64 NumPy array, optional
+        The template: second ARAP rest shape, weight ``options.alpha_rest``.
+    vertex_op : LimitOperator, optional
+        One sample per control vertex (its limit point), for the data support
+        of the image weights; without it the control points stand in.
+    iterations : int, optional
+        Steps for this frame (the first frame takes more).
 
     Returns
     -------
     V : (n, 3) float64 NumPy array
-        Fitted control points, normalised units.
+        Fitted control points, unit box.
     info : dict
-        ``history`` (``geo`` and ``image`` energy per iteration; ``image`` is
-        NaN in the geometric steps), ``time_render`` (seconds in the reverse
-        renders), ``iterations``.
+        ``history`` (``geo`` energy per iteration and ``image`` loss, NaN
+        between refreshes), ``time_render`` (seconds in the renders and their
+        reverse passes), ``iterations``, ``image_scale`` (``k``), ``seen``
+        (share of control vertices the data supports).
 
     Raises
     ------
@@ -84,58 +230,132 @@ def fit_frame(x0, F, points, normals, op, targets, renderer, options: SequenceOp
     from mi_loop.energies.imls import IMLS
 
     n = len(x0)
+    n_it = int(iterations or options.geo_iterations)
     arap = ARAP(x0, F)                 # rest = previous frame's fit
-    imls = IMLS(points, normals) if options.geometric else None
+    arap_rest = ARAP(rest, F) if rest is not None and options.alpha_rest > 0 else None
+    imls = IMLS(points, normals, max_growths=options.reach) if options.geometric else None
     cover = Coverage(points, normals, tree=imls.tree) if options.geometric and options.cover > 0 else None
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
+    alpha_r = dr.opaque(mi.Float, options.alpha_rest / n)
+    fold = None
+    if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
+        n_prev = _sample_normals(op, x0)
+        fold = (mi.Normal3f(n_prev.T.astype(np.float32)), dr.opaque(mi.Float, options.fold))
     rng = np.random.default_rng([options.seed, frame])
     if imls is not None:
         # Step from the residual of the warm start (as in static fitting), capped by lr.
         Q0 = op.positions(mi.Float(x0.ravel().astype(np.float32)))
-        imls.update(np.array(Q0, dtype=np.float64).T)
+        imls.update(np.array(Q0, dtype=np.float64).T, _sample_normals(op, x0))
         lr = float(np.clip(np.sqrt(float(imls.energy(Q0, reduce="mean")[0])) / 3.0, 1e-2 * lr, lr))
     opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
-    use_image = options.image and targets is not None
-    n_geo = options.geo_iterations if options.geometric else 0
-    n_joint = options.joint_iterations if use_image else 0
+    use_image = options.image and image is not None
+    smooth = None
+    if use_image and options.image_smooth > 0:
+        from mi_loop.fitting.largesteps import SmoothParameterisation
+
+        smooth = SmoothParameterisation(F, n, options.image_smooth)
+    order = []
     history = {"geo": [], "image": []}
-    t_render = 0.0
-    for it in range(n_geo + n_joint):
-        x = ControlPoints(opt["x"])       # shared by ARAP, the limit operator and the renders
+    t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
+    for it in range(n_it):
+        x = ControlPoints(opt["x"])       # shared by ARAP and the limit operator
         Vn = x.numpy()
-        # Stiff-to-soft: the first half of the geometric iterations weigh ARAP
-        # (relative to the previous frame) by stiff_factor, so parts that moved
-        # far (thin horns, legs) follow the bulk as near-rigid pieces instead of
-        # snapping onto the nearest surface; the second half fits details.
-        stiff = it < n_geo // 2 and options.stiff_factor > 1
+        # Stiff-to-soft: the first half of the iterations weigh ARAP (relative
+        # to the previous frame) by stiff_factor, so parts that moved far (thin
+        # horns, legs) follow the bulk as near-rigid pieces instead of snapping
+        # onto the nearest surface; the second half fits details.
+        stiff = it < n_it // 2 and options.stiff_factor > 1
         E = (alpha_t * options.stiff_factor if stiff else alpha_t) * arap.energy(x, arap.rotations(Vn))
+        if arap_rest is not None:
+            E = E + alpha_r * arap_rest.energy(x, arap_rest.rotations(Vn))
+        if fold is not None:       # limit normals turned by more than 60 degrees since the previous frame
+            turned = dr.maximum(0.5 - dr.dot(op.normals(x), fold[0]), 0.0)
+            E = E + fold[1] * dr.mean(dr.square(turned))
+        refresh = it % 10 == 0
         if imls is not None:
             Q = op.positions(x)
-            if it % 10 == 0:
+            if refresh:
                 Qn = np.array(Q, dtype=np.float64).T
-                imls.update(Qn)
+                Nq = _sample_normals(op, Vn)
+                imls.update(Qn, Nq)
                 if cover is not None:
-                    cover.update(Qn)
+                    cover.update(Qn, Nq)
             E = E + imls.energy(Q, reduce="mean")
             if cover is not None:
                 E = E + options.cover * cover.energy(Q)
         geo = float(E[0])
-        image = np.nan
-        if it == n_geo and n_geo:
-            opt.set_learning_rate(options.joint_lr_scale * lr)   # noisy image gradients: smaller steps
+        if not np.isfinite(geo):
+            raise FitError(f"fit_frame(): expected a finite energy, got geometric {geo} at frame {frame}, "
+                           f"iteration {it} (the optimisation diverged)")
         dr.backward(E)
-        if it >= n_geo:
+        loss = np.nan
+        if use_image and it % options.image_every == 0:
+            if refresh or weights is None:
+                weights, seen, _ = _image_weights(Vn, F, vertex_op, imls, options)
             t = time.perf_counter()
-            views = rng.choice(len(renderer.views), options.views_per_iteration, replace=False)
-            image = renderer.backward(x, views, targets, seed=frame * 1000 + it, weight=options.beta)
+            if len(order) < options.views_per_iteration:
+                order += rng.permutation(image.n_views).tolist()
+            ids, order = order[:options.views_per_iteration], order[options.views_per_iteration:]
+            g_image, loss = image.gradient(Vn, ids, seed=frame * 1000 + it + 100_000 * options.seed)
             t_render += time.perf_counter() - t
-        if not np.isfinite(geo) or not np.isfinite(image if it >= n_geo else 0.0):
-            raise FitError(f"fit_frame(): expected a finite energy, got geometric {geo}, image {image} "
-                           f"at frame {frame}, iteration {it} (the optimisation diverged)")
+            if smooth is not None:         # Sobolev gradient: the render noise averaged over neighbourhoods
+                g_image = smooth.gradient(g_image)
+            if not (np.isfinite(loss) and np.isfinite(g_image).all()):
+                raise FitError(f"fit_frame(): expected a finite image loss, got {loss} at frame {frame}, "
+                               f"iteration {it} (the optimisation diverged)")
+            if k_scale is None:
+                k_scale = _image_scale(np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3),
+                                       g_image, weights, options)
+        if g_image is not None:
+            g = np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3)
+            g += (k_scale * weights)[:, None] * g_image
+            dr.set_grad(opt["x"], mi.Float(g.astype(np.float32).ravel()))
         history["geo"].append(geo)
-        history["image"].append(image)
+        history["image"].append(loss)
         opt.step()
         if progress is not None:
-            progress(it + 1, n_geo + n_joint)
+            progress(it + 1, n_it)
     V = np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
-    return V, {"history": history, "time_render": t_render, "iterations": n_geo + n_joint}
+    return V, {"history": history, "time_render": t_render, "iterations": n_it,
+               "image_scale": float(k_scale) if k_scale is not None else None, "seen": float(seen)}
+
+
+def _sample_normals(op, Vn):
+    """Unit limit normals at the operator's samples (NumPy), or None if it has no derivative rows."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if not op.derivatives:
+        return None
+    with dr.suspend_grad():
+        return np.array(op.normals(mi.Float(np.asarray(Vn, dtype=np.float32).ravel())), dtype=np.float64).T
+
+
+def _image_weights(Vn, F, vertex_op, imls, options: SequenceOptions):
+    """Per-vertex image weights ``beta (seen + (1 - seen)(1 - s_i))``, the share of supported vertices, normals.
+
+    The normals are the unit limit normals at the control vertices (None without ``vertex_op``).
+    """
+    import mitsuba as mi
+
+    Nq = _sample_normals(vertex_op, Vn) if vertex_op is not None else None
+    if imls is None:                    # images only: the same weight everywhere
+        return np.full(len(Vn), options.beta), 0.0, Nq
+    if vertex_op is not None:
+        Q = np.array(vertex_op.positions(mi.Float(Vn.ravel().astype(np.float32))), dtype=np.float64).T
+    else:
+        Q = Vn
+    spacing = float(np.median(imls.tree.query(imls.points[::max(1, len(imls.points) // 2000)], k=2)[0][:, 1]))
+    s = support(Q, imls.tree, 3.0 * spacing, Nq, imls.normals if Nq is not None else None)
+    return options.beta * (options.seen + (1.0 - options.seen) * (1.0 - s)), float(np.mean(s > 0.5)), Nq
+
+
+def _image_scale(g_geo, g_image, weights, options: SequenceOptions) -> float:
+    """``k``: RMS of the geometric gradient over supported vertices / RMS of the image gradient."""
+    if not options.geometric:
+        return 1.0
+    seen = weights < options.beta * (options.seen + 0.5 * (1.0 - options.seen))
+    rows = g_geo[seen] if seen.any() else g_geo
+    a = float(np.sqrt(np.mean(np.sum(rows ** 2, axis=1))))
+    b = float(np.sqrt(np.mean(np.sum(g_image ** 2, axis=1))))
+    return a / b if b > 0 else 0.0

@@ -161,11 +161,30 @@ class PhotoRenderer:
         self.keys = {name: next(k for k in self.params.keys() if k.endswith(name))
                      for name in ("control_points", "control_albedo")}
         self.params.keep(list(self.keys.values()))
-        backgrounds = background(cameras, emitters)
+        self.backgrounds = background(cameras, emitters)
+        self._composite()
+
+    def _composite(self) -> None:
+        import mitsuba as mi
+
         self.targets = []
-        for view, B in zip(self.views, backgrounds):
+        for view, B in zip(self.views, self.backgrounds):
             a = view.mask[..., None]
             self.targets.append(mi.TensorXf((a * view.rgb + (1.0 - a) * B).astype(np.float32)))
+
+    def set_photos(self, views) -> bool:
+        """Take new photos from the same cameras (a sequence's next frame); False if the cameras differ.
+
+        The scene and the backgrounds are kept, so only the targets are
+        recomposited. With other cameras nothing changes and a new renderer is
+        needed.
+        """
+        views = list(views)
+        if [v.camera for v in views] != [v.camera for v in self.views]:
+            return False
+        self.views = views
+        self._composite()
+        return True
 
     def _set(self, x, c) -> None:
         self.params[self.keys["control_points"]] = x

@@ -98,7 +98,7 @@ def test_every_option_has_help_and_seed_loss_points_random_are_explained(capsys)
         texts[command] = " ".join(capsys.readouterr().out.split())
         assert "'random' four uniformly random points per control face, drawn once from --seed" in texts[command]
         assert "--seed SEED random seed: of the automatic template's sampling and of --samples random" in texts[command]
-    assert "--loss {l1,l2} pixel loss of the image term: mean absolute (l1, default)" in texts["fit-sequence"]
+    assert "--loss {l1,l2} pixel loss of the rendered rig: mean absolute (l1, default)" in texts["fit-sequence"]
     assert "--points N points sampled on every mesh frame" in texts["fit-sequence"]
     assert ("--deterministic bit-reproducible image term: the reverse render runs on one thread (slower)"
             in texts["fit-sequence"])

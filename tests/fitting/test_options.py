@@ -15,9 +15,15 @@ def test_sequence_options_reject_nonsense():
         SequenceOptions(loss="l3")
     with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected mode to be one of"):
         SequenceOptions(mode="depth")
-    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected joint_lr_scale to be a finite number "
-                                         r"> 0, got 0$"):
-        SequenceOptions(joint_lr_scale=0)
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected seen to be a number in \[0, 1\], "
+                                         r"got 1.5$"):
+        SequenceOptions(seen=1.5)
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected reach to be an integer in 0..10, "
+                                         r"got 11$"):
+        SequenceOptions(reach=11)
+    with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected image_every to be an integer >= 1, "
+                                         r"got 0$"):
+        SequenceOptions(image_every=0)
     with pytest.raises(ValueError, match=r"^SequenceOptions\(\): expected geometric or image to be True "
                                          r"\(both terms are off: nothing to fit\), got False$"):
         SequenceOptions(geometric=False, image=False)
@@ -31,3 +37,4 @@ def test_sequence_options_reject_nonsense():
                                          r"\[.*\], got \['colour'\]$"):
         SequenceOptions.from_dict({"colour": "red"})
     assert SequenceOptions.from_dict({"alpha": 0.5}) == SequenceOptions(alpha=0.5)   # older files: defaults
+    assert SequenceOptions.from_dict({"alpha": 0.5, "joint_iterations": 8}) == SequenceOptions(alpha=0.5)  # retired

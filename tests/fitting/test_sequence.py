@@ -9,7 +9,7 @@ import numpy as np
 
 from mi_loop.ad.operator import LimitOperator
 from mi_loop.fitting.options import SequenceOptions
-from mi_loop.fitting.sequence import fit_frame
+from mi_loop.fitting.sequence import RenderedTerm, fit_frame
 from mi_loop.fitting.static import sample_parameters
 from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
 from mi_loop.mesh.sampling import sample_surface
@@ -31,7 +31,7 @@ def test_fit_frame_geometric_terms_pull_a_small_sphere_onto_the_target():
     options = SequenceOptions(image=False, geo_iterations=60)
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
     before = abs(limit_radius(V0, F) - 0.5)
-    V, info = fit_frame(V0, F, P, N, op, None, None, options, frame=0, lr=0.02 * mean_edge_length(V0, F))
+    V, info = fit_frame(V0, F, P, N, op, None, options, frame=0, lr=0.02 * mean_edge_length(V0, F))
     after = abs(limit_radius(V, F) - 0.5)
     assert before > 0.1
     assert after < 0.1 * before, (before, after)
@@ -45,12 +45,12 @@ def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
     """geometric=False: silhouettes of a 0.45 sphere grow a 0.3 control sphere (limit ~0.27)."""
     V0, F = sphere_mesh(0.3, 1)
     options = SequenceOptions(views=4, views_per_iteration=2, resolution=24, spp=4, target_spp=16,
-                              level=1, mode="silhouette", geometric=False, joint_iterations=20)
+                              level=1, mode="silhouette", geometric=False, geo_iterations=20, image_every=1)
     renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
     Vt, Ft = sphere_mesh(0.45)
     targets = renderer.targets(Vt, Ft, vertex_normals(Vt, Ft))
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
-    V, info = fit_frame(V0, F, None, None, op, targets, renderer, options, frame=0, lr=0.01)
+    V, info = fit_frame(V0, F, None, None, op, RenderedTerm(renderer, targets), options, frame=0, lr=0.01)
     r0, r1 = limit_radius(V0, F), limit_radius(V, F)
     assert r1 > r0 + 0.03, (r0, r1)
     assert r1 < 0.45 + 0.05, r1                                  # does not overshoot the target

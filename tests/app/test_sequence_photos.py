@@ -1,0 +1,240 @@
+"""``mi-loop fit-sequence FRAMES --images CAPTURES``: partial depth plus photos per frame, frame ranges.
+
+A small capture is simulated here: a sphere that grows from frame to frame,
+seen by depth from its +z side only (points without normals, written as XYZ
+files) and photographed by 8 cameras around it (RGBA PNGs and transforms.json
+per frame, through :func:`mi_loop.io.capture.write_capture`), with a clean NPZ
+of the frames in correspondence for the metrics.
+"""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from mi_loop import datasets, io
+from mi_loop.app.cli import main
+from mi_loop.io.capture import View, write_capture
+from mi_loop.io.emitters import DEFAULT_EMITTERS
+from mi_loop.mesh.geometry import vertex_normals
+from mi_loop.mesh.sampling import sample_surface
+from mi_loop.render.cameras import fibonacci_cameras
+from mi_loop.render.photo import render_views
+
+from helpers import one_line_error
+
+RADII = (0.30, 0.33, 0.36)
+FAST = ["--vertices", "160", "--iterations", "30", "--first-iterations", "60", "--image-every", "2",
+        "--views-per-iteration", "2", "--spp", "2"]
+
+
+def sphere_frames():
+    V, F = datasets.icosphere(3)
+    return np.stack([V * r for r in RADII]), F
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    """``(depth dir, captures dir, clean.npz)`` of the 3-frame growing sphere."""
+    root = tmp_path_factory.mktemp("capture")
+    Vs, F = sphere_frames()
+    np.savez(root / "clean.npz", vertices=Vs, faces=F)
+    cameras = fibonacci_cameras(8, [0, 0, 0], 1.6, fov_x_deg=40.0, width=40, height=40)
+    rng = np.random.default_rng(0)
+    (root / "depth").mkdir()
+    for t, V in enumerate(Vs):
+        P = sample_surface(V, F, 4000, seed=t)[0]
+        P = P[P[:, 2] > 0.05]                                  # the +z side only: depth never sees the back
+        P = P + rng.normal(0.0, 0.002, P.shape)
+        np.savetxt(root / "depth" / f"{t:04d}.xyz", P)
+        views = render_views(V, F, cameras, [dict(e) for e in DEFAULT_EMITTERS], normals=vertex_normals(V, F),
+                             spp=16, seed=t)
+        write_capture(root / "images" / f"{t:04d}", views)
+    return root / "depth", root / "images", root / "clean.npz"
+
+
+def rows(out):
+    with open(out / "metrics.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def back_error(out, t):
+    """Mean |r - R_t| over the limit points of frame ``t`` on the side depth never saw (z < -0.1)."""
+    V, _ = io.read_mesh(out / "limit" / f"{t:04d}.ply")
+    back = V[:, 2] < -0.1
+    return float(np.abs(np.linalg.norm(V[back], axis=1) - RADII[t]).mean())
+
+
+@pytest.fixture(scope="module")
+def photo_run(capture, tmp_path_factory):
+    depth, images, clean = capture
+    out = tmp_path_factory.mktemp("photo_run") / "out"
+    assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
+                 "-o", str(out), *FAST]) == 0
+    return out
+
+
+@pytest.mark.slow
+def test_photos_hold_the_side_that_depth_never_sees(capture, photo_run, tmp_path):
+    depth, _, clean = capture
+    plain = tmp_path / "plain"
+    assert main(["-q", "fit-sequence", str(depth), "--reference", str(clean), "-o", str(plain), *FAST]) == 0
+    for t in range(3):
+        with_photos, without = back_error(photo_run, t), back_error(plain, t)
+        assert with_photos < 0.5 * without, (t, with_photos, without)
+        assert with_photos < 0.02 * 2 * RADII[t], (t, with_photos)
+
+
+def test_a_photo_run_writes_albedo_metrics_and_pictures(photo_run):
+    r = rows(photo_run)
+    assert [int(x["frame"]) for x in r] == [0, 1, 2]
+    for x in r:
+        assert float(x["mean"]) < 0.02 and float(x["flipped_pct"]) < 1.0
+        # a sphere has nothing to hold its control points in place tangentially: drift is bounded, not small
+        assert 0 <= float(x["drift_mean"]) <= float(x["drift_p95"]) < 0.1
+    assert [int(x["iterations"]) for x in r] == [60, 30, 30]
+    state = json.loads((photo_run / "sequence.json").read_text())
+    assert len(state["images"]) == 3 and state["reference"] is True
+    assert state["template"]["source"] == "poisson+hull"
+    colours = io.read_vertex_colors(photo_run / "control" / "0002.ply")
+    assert colours is not None and colours.shape[1] == 3
+    with np.load(photo_run / "state" / "0002.npz") as z:
+        albedo, x = z["albedo"], z["x"]
+    # the photos are grey 0.5 under a white environment: the estimate (started at 0.5) stays near it
+    assert albedo.shape == x.shape
+    assert np.abs(np.median(albedo, axis=0) - 0.5).max() < 0.1
+    for name in ("drift.png", "strip.png"):
+        assert (photo_run / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_as_many_captures_as_frames_are_needed(capture, tmp_path, capsys):
+    depth, images, _ = capture
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(images / "0000"),
+                                   str(images / "0001"), "-o", str(tmp_path / "out")])
+    assert line == ("mi-loop: error: fit-sequence --images: expected one transforms.json per frame (3 frames), "
+                    "got 2 captures")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_capture_without_masks_is_refused(capture, tmp_path, capsys):
+    depth, images, _ = capture
+    bad = tmp_path / "images"
+    for t in range(3):
+        views = io.read_capture(images / f"{t:04d}" / "transforms.json").views
+        write_capture(bad / f"{t:04d}", [View(v.camera, v.rgb, np.ones_like(v.mask), v.name) for v in views])
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(bad), "-o", str(tmp_path / "out"),
+                                   *FAST])
+    assert line == ("mi-loop: error: fit-sequence --images: expected masks in the capture of frame 0 (an alpha "
+                    "channel or mask_path: the silhouettes come from them), got none in "
+                    f"'{bad / '0000' / 'transforms.json'}' (every pixel of every photo is foreground)")
+    assert not (tmp_path / "out").exists()
+
+
+def test_cameras_that_do_not_see_the_frame_are_refused(capture, tmp_path, capsys):
+    """The same photos with every camera moved 10 units along x: another coordinate frame."""
+    depth, images, _ = capture
+    bad = tmp_path / "images"
+    for t in range(3):
+        views = io.read_capture(images / f"{t:04d}" / "transforms.json").views
+        moved = []
+        for v in views:
+            c2w = np.array(v.camera.c2w)
+            c2w[0, 3] += 10.0
+            cam = type(v.camera)(c2w, v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy, v.camera.width,
+                                 v.camera.height)
+            moved.append(View(cam, v.rgb, v.mask, v.name))
+        write_capture(bad / f"{t:04d}", moved)
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(bad), "-o", str(tmp_path / "out"),
+                                   *FAST])
+    assert line.startswith("mi-loop: error: fit-sequence --images: expected cameras of "
+                           f"'{bad / '0000' / 'transforms.json'}' that see frame 0's points inside the masks, "
+                           "got 0 % of them in the median photo")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_reference_of_another_length_is_refused(capture, tmp_path, capsys):
+    depth, _, _ = capture
+    Vs, F = sphere_frames()
+    np.savez(tmp_path / "short.npz", vertices=Vs[:2], faces=F)
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "--reference", str(tmp_path / "short.npz"),
+                                   "-o", str(tmp_path / "out")])
+    assert line == ("mi-loop: error: fit-sequence --reference: expected one clean mesh per frame (3 frames), "
+                    f"got 2 in '{tmp_path / 'short.npz'}'")
+
+
+def test_frames_selects_frames_of_the_sequence_and_its_captures(capture, tmp_path):
+    depth, images, clean = capture
+    out = tmp_path / "out"
+    assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
+                 "-o", str(out), "--frames", "::2", "--vertices", "160", "--iterations", "4",
+                 "--first-iterations", "4", "--image-every", "4", "--spp", "1"]) == 0
+    r = rows(out)
+    assert [x["name"] for x in r] == ["0000.xyz", "0002.xyz"]
+    state = json.loads((out / "sequence.json").read_text())
+    assert [p.split("/")[-2] for p in state["images"]] == ["0000", "0002"]
+    # the metrics of the run's second frame are against clean frame 2, not 1
+    from mi_loop.metrics import two_sided
+
+    Vs, F = sphere_frames()
+    V, F_lim = io.read_mesh(out / "limit" / "0001.ply")
+    against = [two_sided(V, F_lim, Vs[k], F, n_samples=30_000)["mean"] for k in (1, 2)]
+    assert abs(against[0] - against[1]) > 0.01
+    assert float(r[1]["mean"]) == pytest.approx(against[1], rel=1e-4)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("5", "expected START:STOP:STEP with integers, each optional (e.g. 0:24:2, 5:, ::3), got '5'"),
+    ("a:b", "expected START:STOP:STEP with integers, each optional (e.g. 0:24:2, 5:, ::3), got 'a:b'"),
+    ("0:10:0", "expected a STEP of at least 1, got '0:10:0'"),
+])
+def test_a_bad_frame_range_is_a_usage_error(text, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["fit-sequence", str(tmp_path), "-o", str(tmp_path / "out"), "--frames", text])
+    assert info.value.code == 2
+    assert capsys.readouterr().err == f"mi-loop fit-sequence: error: argument --frames: {message}\n"
+
+
+def test_a_frame_range_that_keeps_nothing_is_refused(capture, tmp_path, capsys):
+    depth, _, _ = capture
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "-o", str(tmp_path / "out"), "--frames", "5:"])
+    assert line == ("mi-loop: error: fit-sequence --frames: expected a selection that keeps at least one of the "
+                    "3 frames, got 5:None:None keeps none")
+
+
+def test_fps_needs_an_animation(capture, tmp_path, capsys):
+    depth, _, _ = capture
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "-o", str(tmp_path / "out"), "--fps", "30"])
+    assert line == ("mi-loop: error: fit-sequence --fps: expected --animation (the frame rate of a baked "
+                    "animation), got --fps 30 without it")
+
+
+def test_a_missing_capture_is_named(capture, tmp_path, capsys):
+    depth, _, _ = capture
+    line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(tmp_path / "nope"),
+                                   "-o", str(tmp_path / "out")])
+    assert line == ("mi-loop: error: fit-sequence --images: expected an existing transforms.json, directory or glob "
+                    f"pattern, got '{tmp_path / 'nope'}': no such file or directory")
+
+
+def test_an_animated_glb_is_a_sequence_in_correspondence(tmp_path):
+    """Fox.glb's Walk clip baked at 24 fps, its first two frames fitted; the drift column is measured."""
+    from helpers import DATA
+
+    out = tmp_path / "out"
+    assert main(["-q", "fit-sequence", str(DATA / "sequences" / "Fox.glb"), "--animation", "Walk", "--fps", "24",
+                 "--frames", "0:2", "-o", str(out), "--vertices", "300", "--iterations", "10",
+                 "--first-iterations", "10", "--no-image"]) == 0
+    r = rows(out)
+    assert [x["name"] for x in r] == ["Fox.glb[Walk#0@0.000s]", "Fox.glb[Walk#1@0.042s]"]
+    assert all(x["drift_mean"] != "" for x in r) and float(r[0]["mean"]) < 0.05
+
+
+def test_an_unknown_animation_is_named(tmp_path, capsys):
+    from helpers import DATA
+
+    line = one_line_error(capsys, ["fit-sequence", str(DATA / "sequences" / "Fox.glb"), "--animation", "Jump",
+                                   "-o", str(tmp_path / "out")])
+    assert "Jump" in line and "['Survey', 'Walk', 'Run']" in line
+    assert not (tmp_path / "out").exists()
