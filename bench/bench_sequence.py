@@ -317,24 +317,11 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
 
 # -- folds: area of the limit surface facing the wrong way ------------------------
 def flipped_fraction(V_lim, F_lim, V, F) -> float:
-    """Share of the limit surface's area whose normal points against the nearest target face's.
+    """Share of the limit surface's area whose normal points against the nearest target face's
+    (:func:`mi_loop.metrics.flipped_fraction`, which ``fit-sequence`` now writes to ``metrics.csv``)."""
+    from mi_loop.metrics import flipped_fraction as flipped
 
-    A fold (the surface turned over on itself) shows as such area. Near the
-    target's sharp edges the nearest face can be the neighbour across the
-    edge, so a faceted target gives a small non-zero floor.
-    """
-    from mi_loop.mesh.sampling import closest_points
-
-    def unit_normals(A, T):
-        n = np.cross(A[T[:, 1]] - A[T[:, 0]], A[T[:, 2]] - A[T[:, 0]])
-        length = np.linalg.norm(n, axis=1)
-        return n / np.maximum(length[:, None], 1e-300), length
-
-    n, area = unit_normals(V_lim, F_lim)
-    _, _, face = closest_points(V, F, V_lim[F_lim].mean(1))
-    n_target, _ = unit_normals(V, F)
-    flipped = np.einsum("ij,ij->i", n, n_target[face]) < 0
-    return float(area[flipped].sum() / area.sum())
+    return flipped(V_lim, F_lim, V, F)
 
 
 def folds_part(args):
