@@ -152,13 +152,16 @@ def clean_errors(out, clean):
     from mi_loop import io, metrics
 
     Vs, F = clean
-    rows = [line.split(",") for line in (out / "metrics.csv").read_text().splitlines()[1:]]
+    import csv
+
+    with open(out / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
     res = []
     for r in rows:
-        t = int(r[0])
+        t = int(r["frame"])
         V_lim, F_lim = io.read_mesh(out / "limit" / f"{t:04d}.ply")
         d = metrics.two_sided(V_lim, F_lim, Vs[t], F, n_samples=30_000)
-        res.append((t, d["mean"], d["rms"], float(r[5]), float(r[6])))
+        res.append((t, d["mean"], d["rms"], float(r["seconds"]), float(r["time_render"])))
     return np.array(res)
 
 
