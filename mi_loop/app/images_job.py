@@ -81,13 +81,9 @@ def _evaluate(result, views, emitters, options, log):
 
 
 def _limit(V, F, albedo):
-    from mi_loop.subdiv.limit import limit_matrix
-    from mi_loop.subdiv.masks import limit_mesh
-    from mi_loop.subdiv.tessellation import tessellate
+    from mi_loop.subdiv.masks import limit_colors, limit_mesh
 
-    P, F_lim, N = limit_mesh(V, F, 3)
-    face_ids, uv, _ = tessellate(F, 3)
-    return P, F_lim, N, np.clip(limit_matrix(F, len(V), face_ids, uv) @ albedo, 0.0, 1.0)
+    return (*limit_mesh(V, F, 3), limit_colors(albedo, F, 3))
 
 
 def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emitters: Path | None = None,

@@ -283,8 +283,8 @@ def _read_views(path: Path, t: int, frame, log):
         not see the frame's points (another frame's capture, other units).
     """
     from mi_loop.errors import expected
+    from mi_loop.fitting.hull import in_mask
     from mi_loop.io.capture import read_capture
-    from mi_loop.render.cameras import project
 
     views = list(read_capture(path).views)
     if len(views) < 2:
@@ -296,15 +296,7 @@ def _read_views(path: Path, t: int, frame, log):
                                   f"none in '{path}' (every pixel of every photo is foreground)"))
     P = frame[1]
     P = P[np.random.default_rng(0).choice(len(P), min(len(P), 2000), replace=False)]
-    inside = []
-    for v in views:
-        cam = v.camera
-        ahead = (P - cam.c2w[:3, 3]) @ -cam.c2w[:3, 2] > 0
-        uv = project(cam, P)
-        ok = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-        px = np.clip(uv[ok].astype(np.int64), 0, [cam.width - 1, cam.height - 1])
-        inside.append(float(np.sum(v.mask[px[:, 1], px[:, 0]] >= 0.5)) / len(P))
-    share = float(np.median(inside))
+    share = float(np.median([np.sum(in_mask(v, P)[1]) / len(P) for v in views]))
     if share < 0.5:
         raise ValueError(expected(
             "fit-sequence --images", f"cameras of '{path}' that see frame {t}'s points inside the masks",
@@ -337,15 +329,17 @@ def _frame_metrics(run: _Run, t, V, target, P, N):
         if run.attachment is None:
             if t != 0 and not _state_path(run.out, 0).is_file():
                 return m, 100 * flipped, None, limit
-            x0 = V if t == 0 else np.load(_state_path(run.out, 0))["x"]
+            L0 = L if t == 0 else limit_positions(run.norm.inverse(np.load(_state_path(run.out, 0))["x"]), run.F)
             _, V0, F0, _ = run.sources.reference[0]()
-            run.attachment = attach(limit_positions(run.norm.inverse(x0), run.F), V0, F0)
+            run.attachment = attach(L0, V0, F0)
         d = drift(L, run.attachment, clean[0])
     return m, 100 * flipped, d, limit
 
 
 def _write_frame(run: _Run, t, name, V, info, target, P, N, t0, log):
     """Write frame ``t``'s limit, control and state files and its CSV row (the commit); print them."""
+
+    from mi_loop.subdiv.masks import limit_colors as limit_colors_of
 
     metrics, flipped, d, limit = _frame_metrics(run, t, V, target, P, N)
     seconds = time.perf_counter() - t0
@@ -357,7 +351,7 @@ def _write_frame(run: _Run, t, name, V, info, target, P, N, t0, log):
     colors = limit_colors = None
     if run.albedo is not None:
         colors = run.albedo
-        limit_colors = _limit_colours(run.albedo, run.F, 2)
+        limit_colors = limit_colors_of(run.albedo, run.F, 2)
     paths = [io.write_ply(run.out / "control" / f"{t:04d}.ply", V_world, run.F, colors=colors),
              io.write_ply(run.out / "limit" / f"{t:04d}.ply", *limit, colors=limit_colors),
              _write_state(run, t, V)]
@@ -369,15 +363,6 @@ def _write_frame(run: _Run, t, name, V, info, target, P, N, t0, log):
     log.say(f"frame {t + 1}/{len(run.reader)} {name}: mean {metrics['mean']:.2e} RMS {metrics['rms']:.2e}, "
             f"flipped {flipped:.2f} %{extra} ({seconds:.1f} s, render {info['time_render']:.1f} s)")
     return paths
-
-
-def _limit_colours(albedo, F, level: int) -> np.ndarray:
-    """The albedo's limit at the vertices of :func:`~mi_loop.subdiv.masks.limit_mesh` ``(..., level)``."""
-    from mi_loop.subdiv.limit import limit_matrix
-    from mi_loop.subdiv.tessellation import tessellate
-
-    face_ids, uv, _ = tessellate(F, level)
-    return np.clip(limit_matrix(F, len(albedo), face_ids, uv) @ albedo, 0.0, 1.0)
 
 
 def _orient(run: _Run, P, N):
@@ -485,7 +470,7 @@ def _photo_strip(run: _Run, t: int, V_world):
     from mi_loop.io.srgb import linear_to_srgb
     from mi_loop.mesh.geometry import vertex_normals
     from mi_loop.render.photo import render_views
-    from mi_loop.subdiv.masks import limit_mesh
+    from mi_loop.subdiv.masks import limit_colors, limit_mesh
 
     views = list(read_capture(run.sources.captures[t]).views)
     view = max(views, key=lambda v: float(v.mask.sum()))
@@ -494,7 +479,7 @@ def _photo_strip(run: _Run, t: int, V_world):
     if run.albedo is not None:
         with np.load(_state_path(run.out, t)) as z:
             albedo = np.array(z["albedo"]) if "albedo" in z.files else run.albedo
-        colors = _limit_colours(albedo, run.F, 2)
+        colors = limit_colors(albedo, run.F, 2)
     fit = render_views(Vl, Fl, [view.camera], run.lights, colors=colors, normals=vertex_normals(Vl, Fl), spp=16)[0]
     a = view.mask[..., None]
     ys, xs = np.nonzero(np.maximum(view.mask, fit.mask) > 0.02)

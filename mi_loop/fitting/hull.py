@@ -14,7 +14,7 @@ from scipy import ndimage
 
 from mi_loop.errors import fail
 
-__all__ = ["capture_bounds", "visual_hull"]
+__all__ = ["capture_bounds", "in_mask", "visual_hull"]
 
 
 def capture_bounds(cameras) -> tuple[np.ndarray, float]:
@@ -55,6 +55,35 @@ def capture_bounds(cameras) -> tuple[np.ndarray, float]:
     return centre, float(max(radii))
 
 
+def in_mask(view, X, threshold: float = 0.5):
+    """Which points a photo sees, and which of those fall inside its mask.
+
+    Parameters
+    ----------
+    view : mi_loop.io.capture.View
+        The photo, its camera and mask.
+    X : (k, 3) float NumPy array
+        Points, in the capture's units.
+    threshold : float
+        Mask value below which a pixel is background.
+
+    Returns
+    -------
+    inside : (k,) bool NumPy array
+        In front of the camera and within the image.
+    foreground : (inside.sum(),) bool NumPy array
+        For the points ``X[inside]``: the mask at their pixel is ``>= threshold``.
+    """
+    from mi_loop.render.cameras import project
+
+    cam = view.camera
+    ahead = (X - cam.c2w[:3, 3]) @ -cam.c2w[:3, 2] > 0
+    uv = project(cam, X)
+    inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    px = np.clip(uv[inside].astype(np.int64), 0, [cam.width - 1, cam.height - 1])
+    return inside, view.mask[px[:, 1], px[:, 0]] >= threshold
+
+
 def visual_hull(views, *, resolution: int = 64, threshold: float = 0.5):
     """Carve a voxel grid with the masks of ``views``; return oriented points on the hull and its box.
 
@@ -88,8 +117,6 @@ def visual_hull(views, *, resolution: int = 64, threshold: float = 0.5):
     least a quarter of the photos: a subject partly outside some frames is
     not cut there, and the corners of the cube that few cameras see are.
     """
-    from mi_loop.render.cameras import project
-
     cameras = [v.camera for v in views]
     centre, radius = capture_bounds(cameras)
     axis = centre[:, None] + np.linspace(-radius, radius, resolution)[None, :]
@@ -97,12 +124,7 @@ def visual_hull(views, *, resolution: int = 64, threshold: float = 0.5):
     keep = np.ones(len(X), dtype=bool)
     seen = np.zeros(len(X), dtype=np.int64)
     for view in views:
-        cam = view.camera
-        ahead = (X - cam.c2w[:3, 3]) @ -cam.c2w[:3, 2] > 0
-        uv = project(cam, X)
-        inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-        px = np.clip(uv[inside].astype(np.int64), 0, [cam.width - 1, cam.height - 1])
-        fg = view.mask[px[:, 1], px[:, 0]] >= threshold
+        inside, fg = in_mask(view, X, threshold)
         idx = np.flatnonzero(inside)
         keep[idx[~fg]] = False
         seen[idx] += 1

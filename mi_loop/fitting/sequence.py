@@ -235,6 +235,10 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     arap_rest = ARAP(rest, F) if rest is not None and options.alpha_rest > 0 else None
     imls = IMLS(points, normals, max_growths=options.reach) if options.geometric else None
     cover = Coverage(points, normals, tree=imls.tree) if options.geometric and options.cover > 0 else None
+    spacing = None                      # median nearest-neighbour spacing of the data: the support radius
+    if imls is not None:
+        P = imls.points[::max(1, len(imls.points) // 2000)]
+        spacing = float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
     alpha_r = dr.opaque(mi.Float, options.alpha_rest / n)
     fold = None
@@ -291,7 +295,8 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         loss = np.nan
         if use_image and it % options.image_every == 0:
             if refresh or weights is None:
-                weights, seen, _ = _image_weights(Vn, F, vertex_op, imls, options)
+                weights, s = _image_weights(Vn, vertex_op, imls, spacing, options)
+                seen = float(np.mean(s > 0.5)) if s is not None else 0.0
             t = time.perf_counter()
             if len(order) < options.views_per_iteration:
                 order += rng.permutation(image.n_views).tolist()
@@ -305,7 +310,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
                                f"iteration {it} (the optimisation diverged)")
             if k_scale is None:
                 k_scale = _image_scale(np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3),
-                                       g_image, weights, options)
+                                       g_image, s, options)
         if g_image is not None:
             g = np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3)
             g += (k_scale * weights)[:, None] * g_image
@@ -331,31 +336,28 @@ def _sample_normals(op, Vn):
         return np.array(op.normals(mi.Float(np.asarray(Vn, dtype=np.float32).ravel())), dtype=np.float64).T
 
 
-def _image_weights(Vn, F, vertex_op, imls, options: SequenceOptions):
-    """Per-vertex image weights ``beta (seen + (1 - seen)(1 - s_i))``, the share of supported vertices, normals.
-
-    The normals are the unit limit normals at the control vertices (None without ``vertex_op``).
-    """
+def _image_weights(Vn, vertex_op, imls, spacing: float, options: SequenceOptions):
+    """Per-vertex image weights ``beta (seen + (1 - seen)(1 - s_i))`` and the supports ``s`` (None: images only)."""
     import mitsuba as mi
 
-    Nq = _sample_normals(vertex_op, Vn) if vertex_op is not None else None
     if imls is None:                    # images only: the same weight everywhere
-        return np.full(len(Vn), options.beta), 0.0, Nq
+        return np.full(len(Vn), options.beta), None
+    Nq = None
     if vertex_op is not None:
         Q = np.array(vertex_op.positions(mi.Float(Vn.ravel().astype(np.float32))), dtype=np.float64).T
+        Nq = _sample_normals(vertex_op, Vn)
     else:
         Q = Vn
-    spacing = float(np.median(imls.tree.query(imls.points[::max(1, len(imls.points) // 2000)], k=2)[0][:, 1]))
     s = support(Q, imls.tree, 3.0 * spacing, Nq, imls.normals if Nq is not None else None)
-    return options.beta * (options.seen + (1.0 - options.seen) * (1.0 - s)), float(np.mean(s > 0.5)), Nq
+    return options.beta * (options.seen + (1.0 - options.seen) * (1.0 - s)), s
 
 
-def _image_scale(g_geo, g_image, weights, options: SequenceOptions) -> float:
+def _image_scale(g_geo, g_image, s, options: SequenceOptions) -> float:
     """``k``: RMS of the geometric gradient over supported vertices / RMS of the image gradient."""
     if not options.geometric:
         return 1.0
-    seen = weights < options.beta * (options.seen + 0.5 * (1.0 - options.seen))
-    rows = g_geo[seen] if seen.any() else g_geo
+    supported = (s > 0.5) & (options.seen < 1)     # with seen 1 the weights do not tell them apart
+    rows = g_geo[supported] if supported.any() else g_geo
     a = float(np.sqrt(np.mean(np.sum(rows ** 2, axis=1))))
     b = float(np.sqrt(np.mean(np.sum(g_image ** 2, axis=1))))
     return a / b if b > 0 else 0.0

@@ -74,7 +74,7 @@ def frame_range(text: str) -> slice:
     """
     parts = str(text).split(":")
     try:
-        if not 1 <= len(parts) <= 3 or len(parts) == 1:
+        if not 2 <= len(parts) <= 3:
             raise ValueError
         values = [int(p) if p.strip() else None for p in parts]
     except ValueError:

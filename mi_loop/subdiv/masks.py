@@ -6,10 +6,11 @@ import numpy as np
 from mi_loop.errors import fail
 from mi_loop.mesh.topology import validate_faces, validate_mesh
 from mi_loop.subdiv.hierarchy import build_hierarchy
-from mi_loop.subdiv.limit import level_rows, padded_to_csr
+from mi_loop.subdiv.limit import level_rows, limit_matrix, padded_to_csr
 from mi_loop.subdiv.tessellation import tessellate
 
-__all__ = ["limit_masks", "limit_mesh", "limit_normals", "limit_positions", "tangent_masks", "vertex_samples"]
+__all__ = ["limit_colors", "limit_masks", "limit_mesh", "limit_normals", "limit_positions", "tangent_masks",
+           "vertex_samples"]
 
 _CORNER_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
@@ -94,6 +95,30 @@ def limit_mesh(V, F, level: int = 3, creases=None):
                  for i, w in level_rows(h, fid, uv, (None, "u", "v")))
     N = np.cross(du, dv)
     return P, F_t, N / np.linalg.norm(N, axis=1, keepdims=True)
+
+
+def limit_colors(colors, F, level: int = 3) -> np.ndarray:
+    """Per-control-vertex colours carried to the vertices of :func:`limit_mesh` ``(V, F, level)``.
+
+    The limit operator is linear, so the colour at a limit point is the same
+    combination of the control colours as the point is of the control points.
+
+    Parameters
+    ----------
+    colors : (n, 3) float NumPy array
+        One colour per control vertex (e.g. linear albedo in [0, 1]).
+    F : (m, 3) int NumPy array
+        Control faces.
+    level : int, optional
+        Tessellation level, as given to :func:`limit_mesh`.
+
+    Returns
+    -------
+    (k, 3) float64 NumPy array
+        Clipped to [0, 1].
+    """
+    face_ids, uv, _ = tessellate(F, level)
+    return np.clip(limit_matrix(F, len(colors), face_ids, uv) @ np.asarray(colors, dtype=np.float64), 0.0, 1.0)
 
 
 def limit_masks(F, n_vertices, creases=None):

@@ -55,6 +55,14 @@ def capture(tmp_path_factory):
     return root / "depth", root / "images", root / "clean.npz"
 
 
+def rewrite(images, out, change):
+    """Write the captures of ``images`` to ``out`` with ``change(view)`` applied to every view; ``out``."""
+    for t in range(len(RADII)):
+        views = io.read_capture(images / f"{t:04d}" / "transforms.json").views
+        write_capture(out / f"{t:04d}", [change(v) for v in views])
+    return out
+
+
 def rows(out):
     with open(out / "metrics.csv", newline="") as f:
         return list(csv.DictReader(f))
@@ -120,10 +128,7 @@ def test_as_many_captures_as_frames_are_needed(capture, tmp_path, capsys):
 
 def test_a_capture_without_masks_is_refused(capture, tmp_path, capsys):
     depth, images, _ = capture
-    bad = tmp_path / "images"
-    for t in range(3):
-        views = io.read_capture(images / f"{t:04d}" / "transforms.json").views
-        write_capture(bad / f"{t:04d}", [View(v.camera, v.rgb, np.ones_like(v.mask), v.name) for v in views])
+    bad = rewrite(images, tmp_path / "images", lambda v: View(v.camera, v.rgb, np.ones_like(v.mask), v.name))
     line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(bad), "-o", str(tmp_path / "out"),
                                    *FAST])
     assert line == ("mi-loop: error: fit-sequence --images: expected masks in the capture of frame 0 (an alpha "
@@ -135,17 +140,14 @@ def test_a_capture_without_masks_is_refused(capture, tmp_path, capsys):
 def test_cameras_that_do_not_see_the_frame_are_refused(capture, tmp_path, capsys):
     """The same photos with every camera moved 10 units along x: another coordinate frame."""
     depth, images, _ = capture
-    bad = tmp_path / "images"
-    for t in range(3):
-        views = io.read_capture(images / f"{t:04d}" / "transforms.json").views
-        moved = []
-        for v in views:
-            c2w = np.array(v.camera.c2w)
-            c2w[0, 3] += 10.0
-            cam = type(v.camera)(c2w, v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy, v.camera.width,
-                                 v.camera.height)
-            moved.append(View(cam, v.rgb, v.mask, v.name))
-        write_capture(bad / f"{t:04d}", moved)
+    def moved(v):
+        c2w = np.array(v.camera.c2w)
+        c2w[0, 3] += 10.0
+        cam = type(v.camera)(c2w, v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy, v.camera.width,
+                             v.camera.height)
+        return View(cam, v.rgb, v.mask, v.name)
+
+    bad = rewrite(images, tmp_path / "images", moved)
     line = one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(bad), "-o", str(tmp_path / "out"),
                                    *FAST])
     assert line.startswith("mi-loop: error: fit-sequence --images: expected cameras of "
