@@ -1,7 +1,8 @@
 """As-rigid-as-possible (ARAP) regulariser on the control mesh.
 
 Topology, cotangent weights and rest edge vectors are computed once in NumPy;
-the best rotations come from a batched NumPy SVD every iteration; the energy
+the best rotations come in closed form every iteration (:mod:`.rotations`:
+Horn's quaternion, vectorised NumPy, no SVD); the energy
 itself is a Dr.Jit expression of the control points with fixed-size device
 arrays, so AD gives ``dE/dV`` and the kernels are reused.
 """
@@ -13,11 +14,15 @@ import scipy.sparse as sp
 from mi_loop.ad.control import ControlPoints
 from mi_loop.ad.sparse import IndexMap
 from mi_loop.ad.upload import upload_float, upload_vec
+from mi_loop.energies.rotations import best_rotations
 from mi_loop.errors import fail
 from mi_loop.mesh.checks import check_points
 from mi_loop.mesh.topology import validate_faces
 
 __all__ = ["ARAP", "cotangent_weights"]
+
+#: Above this valence the covariances are gathered by a sparse product instead of a padded table.
+MAX_PADDED_VALENCE = 16
 
 
 def cotangent_weights(V, F, min_weight: float = 1e-3):
@@ -102,7 +107,9 @@ class ARAP:
     ``sum_j w_ij |e'_ij - R e_ij|^2``, i.e. maximises ``tr(R S_i)`` with
     ``S_i = sum_j w_ij e_ij e'_ij^T``: from ``S_i = U Sigma W^T``,
     ``R_i = W diag(1, 1, det(W U^T)) U^T`` (Umeyama 1991; the sign flip on the
-    smallest singular value turns a reflection into the best rotation).
+    smallest singular value turns a reflection into the best rotation). It is
+    computed without the SVD, as Horn's unit quaternion (the same rotation,
+    proper by construction; :func:`~mi_loop.energies.rotations.best_rotations`).
 
     Why holding ``R`` fixed gives the exact gradient: with
     ``R*(V) = argmin_{R in SO(3)^n} E(V, R)``, the regulariser is
@@ -146,9 +153,24 @@ class ARAP:
         self.J = np.concatenate([E[:, 1], E[:, 0]])
         self.w = np.concatenate([w, w])
         self.e_rest = V[self.I] - V[self.J]  # (2e, 3) rest edges e_ij
-        # S_i = sum_j w_ij e_ij e'_ij^T as one sparse product over directed edges
-        self._gather = sp.csr_matrix((self.w, (self.I, np.arange(len(self.I)))),
-                                     shape=(self.n, len(self.I)))
+        # S_i = sum_j w_ij e_ij e'_ij^T: one batched 3 x k by k x 3 product over each vertex's k neighbours
+        # (padded with the vertex itself: a zero edge), or one sparse product over the directed edges where
+        # a vertex of high valence would make the padding large.
+        order = np.argsort(self.I, kind="stable")
+        counts = np.bincount(self.I, minlength=self.n)
+        k = int(counts.max()) if len(counts) else 0
+        if k <= MAX_PADDED_VALENCE:
+            centre = self.I[order]
+            slot = np.arange(len(centre)) - np.repeat(np.cumsum(counts) - counts, counts)
+            self._neighbours = np.tile(np.arange(self.n)[:, None], (1, k))
+            self._neighbours[centre, slot] = self.J[order]
+            rest = np.zeros((self.n, k, 3))
+            rest[centre, slot] = (self.w[:, None] * self.e_rest)[order]
+            self._rest_t = np.ascontiguousarray(np.swapaxes(rest, 1, 2))   # (n, 3, k)
+            self._gather = None
+        else:
+            self._gather = sp.csr_matrix((self.w, (self.I, np.arange(len(self.I)))),
+                                         shape=(self.n, len(self.I)))
         self._Id = IndexMap(self.I, self.n)
         self._Jd = IndexMap(self.J, self.n)
         self._wd = upload_float(self.w)
@@ -172,7 +194,7 @@ class ARAP:
         return V
 
     def rotations(self, V) -> np.ndarray:
-        """Best rotations ``R_i`` for current control points (NumPy, batched SVD).
+        """Best rotations ``R_i`` for current control points (NumPy, closed form: :mod:`.rotations`).
 
         Parameters
         ----------
@@ -185,13 +207,14 @@ class ARAP:
             Proper rotations (``det = +1``); the identity where a vertex has no edges.
         """
         V = self._numpy_points(V, "rotations")
+        return best_rotations(self.covariances(V))
+
+    def covariances(self, V) -> np.ndarray:
+        """``S_i = sum_j w_ij e_ij e'_ij^T`` for current control points ``V`` ((n, 3) NumPy): (n, 3, 3)."""
+        if self._gather is None:
+            return self._rest_t @ (V[:, None, :] - V[self._neighbours])
         e_cur = V[self.I] - V[self.J]
-        S = (self._gather @ (self.e_rest[:, :, None] * e_cur[:, None, :]).reshape(-1, 9))
-        U, _, Wt = np.linalg.svd(S.reshape(-1, 3, 3))
-        W = np.swapaxes(Wt, 1, 2)
-        sign = np.where(np.linalg.det(W @ np.swapaxes(U, 1, 2)) < 0, -1.0, 1.0)
-        W[:, :, 2] *= sign[:, None]
-        return W @ np.swapaxes(U, 1, 2)
+        return (self._gather @ (self.e_rest[:, :, None] * e_cur[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
 
     def energy(self, x, R=None):
         """ARAP energy ``E(V, R)`` with the rotations held constant.
