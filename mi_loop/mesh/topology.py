@@ -11,6 +11,8 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from mi_loop.errors import fail
 
@@ -196,18 +198,10 @@ def _check_vertex_fans(F: np.ndarray, n: int, func: str):
     pos = np.minimum(np.searchsorted(key_in[order], rev_out), 3 * m - 1)
     hit = key_in[order][pos] == rev_out
     A, B = np.flatnonzero(hit), order[pos[hit]]
-    label = np.arange(3 * m)
-    while True:  # label propagation to the smallest corner id of each fan
-        new = label.copy()
-        lo = np.minimum(label[A], label[B])
-        np.minimum.at(new, A, lo)
-        np.minimum.at(new, B, lo)
-        new = new[new]
-        if np.array_equal(new, label):
-            break
-        label = new
-    fans = np.unique(np.stack([corner_v, label], 1), axis=0)
-    per_vertex = np.bincount(fans[:, 0], minlength=n)
+    graph = sp.coo_matrix((np.ones(len(A)), (A, B)), shape=(3 * m, 3 * m))
+    _, label = connected_components(graph, directed=False)     # the fans, as components of the corner graph
+    fans = np.unique(corner_v.astype(np.int64) * (3 * m) + label) // (3 * m)
+    per_vertex = np.bincount(fans, minlength=n)
     bad = np.flatnonzero(per_vertex > 1)
     if len(bad):
         fail(func, "a manifold mesh (the faces around each vertex form one fan)",
@@ -226,6 +220,20 @@ def _check_double_faces(F: np.ndarray, n: int, func: str):
              f"faces {f} = {F[f].tolist()} and {g} = {F[g].tolist()}: a closed two-triangle component, "
              "whose limit surface is flat and doubly covered and whose refinement has double edges; "
              "remove it")
+
+
+def check_vertices(V, func: str) -> np.ndarray:
+    """Vertex positions of shape ``(n, 3)``, ``n > 0``, numeric and finite, as float64 (else a named ValueError)."""
+    V = np.asarray(V)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        fail(func, "vertices of shape (n, 3) with n > 0", f"shape {V.shape}")
+    if not np.issubdtype(V.dtype, np.number):
+        fail(func, "numeric vertex coordinates", f"dtype {V.dtype}")
+    V = V.astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(V).all(1))
+    if len(bad):
+        fail(func, "finite vertex coordinates", f"vertex {bad[0]} = {V[bad[0]].tolist()} ({len(bad)} such vertices)")
+    return V
 
 
 def validate_mesh(V, F, func: str = "validate_mesh"):
@@ -273,15 +281,7 @@ def validate_mesh(V, F, func: str = "validate_mesh"):
     ...
     ValueError: validate_mesh(): expected no two faces on the same three vertices, got faces 0 = [0, 1, 2] and 1 = [0, 2, 1]: a closed two-triangle component, whose limit surface is flat and doubly covered and whose refinement has double edges; remove it
     """  # noqa: E501 (a doctest's exception line cannot be wrapped)
-    V = np.asarray(V)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-        fail(func, "vertices of shape (n, 3) with n > 0", f"shape {V.shape}")
-    if not np.issubdtype(V.dtype, np.number):
-        fail(func, "numeric vertex coordinates", f"dtype {V.dtype}")
-    V = V.astype(np.float64)
-    bad = np.flatnonzero(~np.isfinite(V).all(1))
-    if len(bad):
-        fail(func, "finite vertex coordinates", f"vertex {bad[0]} = {V[bad[0]].tolist()} ({len(bad)} such vertices)")
+    V = check_vertices(V, func)
     F = validate_faces(F, len(V), func)
     used = np.zeros(len(V), bool)
     used[F.ravel()] = True

@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.errors import fail
+from mi_loop.mesh.topology import validate_faces
 from mi_loop.subdiv.boxspline import box_basis
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
 from mi_loop.subdiv.irregular import MAX_DEPTH
@@ -301,6 +302,15 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     """
     if derivative not in (None, "u", "v"):
         fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
+    if derivative is None:             # all samples at control-vertex corners: the vertex masks, no hierarchy
+        F = validate_faces(F, n_vertices, "limit_matrix")
+        face_ids, uv = check_samples(face_ids, uv, len(F), "limit_matrix")
+        corner = np.select([(uv[:, 0] == 0) & (uv[:, 1] == 0), (uv[:, 0] == 1) & (uv[:, 1] == 0),
+                            (uv[:, 0] == 0) & (uv[:, 1] == 1)], [0, 1, 2], -1)
+        if len(corner) and (corner >= 0).all():
+            from mi_loop.subdiv.masks import _position_masks
+
+            return _position_masks(F, n_vertices, creases, "limit_matrix")[F[face_ids, corner]]
     h = build_hierarchy(F, n_vertices, creases)
     face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))

@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from mi_loop.errors import fail
-from mi_loop.mesh.topology import validate_faces, validate_mesh
+from mi_loop.mesh.halfedge import Topology
+from mi_loop.mesh.topology import check_creases, check_vertices, validate_faces
 from mi_loop.subdiv.hierarchy import build_hierarchy
 from mi_loop.subdiv.limit import level_rows, limit_matrix, padded_to_csr
 from mi_loop.subdiv.tessellation import tessellate
@@ -160,8 +162,8 @@ def limit_masks(F, n_vertices, creases=None):
     >>> M.toarray()[0].round(6).tolist()             # valence 3: chi = 1 / (3 / (8 beta) + 3) = 1/5
     [0.4, 0.2, 0.2, 0.2]
     """
-    _check_used(F, n_vertices, "limit_masks")
-    return _masks(F, n_vertices, creases, (None,), "limit_masks")[0]
+    F = _check_used(F, n_vertices, "limit_masks")
+    return _position_masks(F, n_vertices, creases, "limit_masks")
 
 
 def tangent_masks(F, n_vertices, creases=None):
@@ -203,6 +205,67 @@ def tangent_masks(F, n_vertices, creases=None):
     return _masks(F, n_vertices, creases, ("u", "v"), "tangent_masks")
 
 
+def loop_beta(k):
+    """Loop's vertex weight ``beta(k) = (5/8 - (3/8 + cos(2 pi / k) / 4)^2) / k`` for valence ``k``."""
+    k = np.asarray(k, dtype=np.float64)
+    return (0.625 - (0.375 + 0.25 * np.cos(2.0 * np.pi / k)) ** 2) / k
+
+
+def _position_masks(F, n_vertices, creases, func):
+    """Limit-position masks at the control vertices: closed forms, the hierarchy only where none applies.
+
+    The limit point of a control vertex is the dominant left eigenvector of
+    its local subdivision matrix applied to its one-ring. In closed form:
+
+    - smooth (no sharp incident edge), valence ``k``: ``chi = 1 / (3 / (8 beta(k)) + k)``
+      per neighbour, ``1 - k chi`` at the centre;
+    - crease (exactly two infinitely sharp incident edges, boundary edges
+      included, and no semi-sharp one; not a boundary vertex of one face):
+      ``1/6, 2/3, 1/6`` along the crease (the cubic B-spline's limit);
+    - corner (three or more infinitely sharp edges, or a boundary vertex of
+      one face under the edge-and-corner rule): the vertex itself.
+
+    Darts (one sharp edge) and vertices with a semi-sharp edge have no such
+    form: their rows come from the hierarchy (:func:`_masks`), built only if
+    one exists.
+    """
+    n = int(n_vertices)                                 # F: validated by the caller
+    topo = Topology.build(F, n, check_creases(creases, F, n, func))
+    E, sharp = topo.E, topo.sharpness
+    ends = np.concatenate([E[:, 0], E[:, 1]])
+    other = np.concatenate([E[:, 1], E[:, 0]])
+    s = np.concatenate([sharp, sharp])
+    valence = np.bincount(ends, minlength=n)
+    hard = np.bincount(ends, weights=np.isinf(s), minlength=n)
+    semi = np.bincount(ends, weights=np.isfinite(s) & (s > 0), minlength=n) > 0
+    faces = np.bincount(F.ravel(), minlength=n)
+    corner = ~semi & ((hard >= 3) | ((hard == 2) & (faces == 1)))
+    crease = ~semi & ~corner & (hard == 2)
+    smooth = ~semi & (hard == 0)
+    chi = 1.0 / (3.0 / (8.0 * loop_beta(np.maximum(valence, 3))) + valence)
+    rows, cols, vals = [], [], []
+    on = smooth[ends]                                   # smooth: chi per neighbour, 1 - k chi at the centre
+    rows += [ends[on], np.flatnonzero(smooth)]
+    cols += [other[on], np.flatnonzero(smooth)]
+    vals += [chi[ends[on]], (1.0 - valence * chi)[smooth]]
+    on = crease[ends] & np.isinf(s)                     # crease: 1/6 per crease neighbour, 2/3 at the centre
+    rows += [ends[on], np.flatnonzero(crease)]
+    cols += [other[on], np.flatnonzero(crease)]
+    vals += [np.full(on.sum(), 1.0 / 6.0), np.full(crease.sum(), 2.0 / 3.0)]
+    rows.append(np.flatnonzero(corner))                 # corner: pinned
+    cols.append(np.flatnonzero(corner))
+    vals.append(np.ones(corner.sum()))
+    M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    rest = ~(smooth | crease | corner)                  # darts, semi-sharp
+    if rest.any():
+        exact = _masks(F, n, creases, (None,), func)[0]
+        keep = sp.diags(rest.astype(np.float64))
+        M = sp.diags((~rest).astype(np.float64)) @ M + keep @ exact
+    M = M.tocsr()
+    M.sort_indices()
+    return M
+
+
 def _masks(F, n_vertices, creases, derivatives, func):
     """Mask matrices ``(n, n)`` at the control vertices, one per entry of ``derivatives``."""
     h = build_hierarchy(F, n_vertices, creases, func)
@@ -241,7 +304,7 @@ def limit_positions(V, F, creases=None):
     array([0.2, 0.2, 0.2])
     """
     V, F = _checked(V, F, "limit_positions")
-    return _masks(F, len(V), creases, (None,), "limit_positions")[0] @ V
+    return _position_masks(F, len(V), creases, "limit_positions") @ V
 
 
 def limit_normals(V, F, creases=None):
@@ -281,7 +344,7 @@ def limit_normals(V, F, creases=None):
 
 
 def _check_used(F, n_vertices, func):
-    """Every vertex must be used by a face (a vertex mask needs a face); F is validated first."""
+    """Every vertex must be used by a face (a vertex mask needs a face); returns F, validated first."""
     F = validate_faces(F, n_vertices, func)
     used = np.zeros(int(n_vertices), bool)
     used[F.ravel()] = True
@@ -289,12 +352,12 @@ def _check_used(F, n_vertices, func):
         unused = np.flatnonzero(~used)
         fail(func, "every control vertex used by a face (mi_loop.validate_mesh drops the others)",
              f"{len(unused)} unused vertices, the first vertex {unused[0]}")
+    return F
 
 
 def _checked(V, F, func):
     V = np.asarray(V, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
         fail(func, "control points V of shape (n, 3) with n > 0", f"shape {V.shape}")
-    _check_used(F, len(V), func)
-    V, F, _ = validate_mesh(V, F, func)
-    return V, F
+    F = _check_used(F, len(V), func)
+    return check_vertices(V, func), F
