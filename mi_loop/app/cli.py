@@ -17,6 +17,10 @@ Subcommands
     + multi-view differentiable rendering); writes ``control/``, ``limit/``,
     ``state/``, ``sequence.json``, ``metrics.csv``, ``drift.png``, ``strip.png``;
     ``--resume`` continues an interrupted run bit for bit.
+``mi-loop fit-batch INPUTS... -o OUTDIR [--scheduler ADDRESS | --workers N] [--sequences] ...``
+    Fit many inputs on a Dask cluster, each like ``fit`` (or ``fit-sequence``)
+    into ``OUTDIR/<name>/``; ``OUTDIR/summary.csv`` lists every input's status,
+    time, worker, error and metrics; exit status 1 when any input failed.
 ``mi-loop fit-images transforms.json -o OUTDIR [--vertices N] [--init sphere|hull|MESH] ...``
     Fit a Loop control mesh and its per-vertex albedo to calibrated photos
     (silhouettes and shading through Mitsuba's differentiable renderer,
@@ -58,18 +62,22 @@ def _options(cls, values: dict, command: str):
         raise ValueError(expected(f"{command} {flag(exc.name)}", exc.what, exc.shown)) from None
 
 
-def fit_options(args) -> FitOptions:
-    """The :class:`FitOptions` of ``mi-loop fit``'s arguments (checked)."""
-    return _options(FitOptions, {f.name: getattr(args, f.name) for f in fields(FitOptions)}, "fit")
+def fit_options(args, command: str = "fit") -> FitOptions:
+    """The :class:`FitOptions` of ``mi-loop fit``'s (or ``fit-batch``'s) arguments (checked)."""
+    return _options(FitOptions, {f.name: getattr(args, f.name) for f in fields(FitOptions)}, command)
 
 
-def sequence_options(args) -> SequenceOptions:
-    """The :class:`SequenceOptions` of ``mi-loop fit-sequence``'s arguments (checked)."""
+def sequence_options(args, command: str = "fit-sequence") -> SequenceOptions:
+    """The :class:`SequenceOptions` of ``fit-sequence``'s (or ``fit-batch --sequences``') arguments (checked)."""
     values = {f.name: getattr(args, f.name) for f in fields(SequenceOptions) if hasattr(args, f.name)}
     if args.views_per_iteration is None:          # the default, but never more than --views
         values["views_per_iteration"] = min(SequenceOptions.views_per_iteration, args.views)
     values.update(geometric=not args.image_only, image=not args.no_image)
-    return _options(SequenceOptions, values, "fit-sequence")
+    options = _options(SequenceOptions, values, command)
+    if args.template is not None and args.poisson_template:
+        raise ValueError(expected(f"{command} --poisson-template", "no --template (it builds the template)",
+                                  f"--template '{args.template}'"))
+    return options
 
 
 def image_options(args) -> ImageFitOptions:
@@ -148,9 +156,6 @@ def _fit_sequence(args, log) -> None:
     from mi_loop.app import sequence_job
 
     options = sequence_options(args)
-    if args.template is not None and args.poisson_template:
-        raise ValueError(expected("fit-sequence --poisson-template", "no --template (it builds the template)",
-                                  f"--template '{args.template}'"))
     check_variant(args.variant, "fit-sequence")
     if args.animation is None and args.fps != 24.0:
         raise ValueError(expected("fit-sequence --fps", "--animation (the frame rate of a baked animation)",
@@ -158,6 +163,15 @@ def _fit_sequence(args, log) -> None:
     sequence_job.run(args.frames, args.output, options, template=args.template, resume=args.resume,
                      variant=args.variant, log=log, images=args.images, emitters=args.emitters,
                      reference=args.reference, frames=args.frame_range, animation=args.animation, fps=args.fps)
+
+
+def _fit_batch(args, log) -> None:
+    from mi_loop.app import batch_job
+
+    options = sequence_options(args, "fit-batch") if args.sequences else fit_options(args, "fit-batch")
+    check_variant(args.variant, "fit-batch")
+    batch_job.run(args.inputs, args.output, options, scheduler=args.scheduler, workers=args.workers,
+                  template=args.template, variant=args.variant, frames=getattr(args, "frame_range", None), log=log)
 
 
 def _fit_images(args, log) -> None:
@@ -196,7 +210,7 @@ def _control(args, log) -> None:
 
 
 COMMANDS = {"demo": _demo, "render": _render_file, "control": _control, "fit": _fit, "compare": _compare,
-            "fit-sequence": _fit_sequence, "fit-images": _fit_images}
+            "fit-sequence": _fit_sequence, "fit-batch": _fit_batch, "fit-images": _fit_images}
 
 
 def _traceback_wanted(args) -> bool:

@@ -8,9 +8,11 @@ messages. ``--quiet`` and ``--debug`` are accepted before or after the subcomman
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from mi_loop import datasets
+from mi_loop.app.cluster import LOCAL_WORKERS
 from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
 from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, ImageFitOptions, SequenceOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
@@ -56,7 +58,24 @@ def flag(name: str) -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose usage errors are one line on stderr."""
+    """ArgumentParser whose usage errors are one line on stderr.
+
+    ``switch=(flag, other)``: when ``flag`` (or an abbreviation of it) is among
+    the arguments, the parser ``other`` parses them instead (``fit-batch
+    --sequences`` takes fit-sequence's options, which clash with fit's).
+    """
+
+    def __init__(self, *args, switch=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.switch = switch
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self.switch is not None:
+            flag, other = self.switch
+            given = sys.argv[1:] if args is None else args
+            if any(a.startswith("--") and len(a) > 4 and flag.startswith(a) for a in given):
+                return other.parse_known_args(args, namespace)
+        return super().parse_known_args(args, namespace)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -130,12 +149,19 @@ def _template_options(p, options) -> None:
 
 
 def _fit_parser(sub, common) -> None:
-    o = FitOptions
     p = sub.add_parser("fit", parents=[common], help="fit a Loop control mesh to a point cloud or mesh")
     p.add_argument("input", type=Path, nargs="?",
                    help="points (PLY/XYZ/PTS/NPZ; normals estimated when missing) or mesh (PLY/OBJ/OFF); "
                         "omit with --demo")
     p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    _fit_options(p)
+    p.add_argument("--demo", action="store_true", help="fit the built-in noisy torus point cloud (no input file)")
+    _variant(p)
+
+
+def _fit_options(p) -> None:
+    """The options of :class:`FitOptions` and ``--template`` (``fit`` and ``fit-batch``)."""
+    o = FitOptions
     _template_options(p, o)
     p.add_argument("--alpha", type=float, default=o.alpha,
                    help="ARAP weight (default %(default)s; raise it for noisy data)")
@@ -150,12 +176,9 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("--tolerance", type=float, default=o.tolerance,
                    help="relative improvement below which the fit has converged (default %(default)s)")
     p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(""))
-    p.add_argument("--demo", action="store_true", help="fit the built-in noisy torus point cloud (no input file)")
-    _variant(p)
 
 
 def _sequence_parser(sub, common) -> None:
-    o = SequenceOptions
     p = sub.add_parser("fit-sequence", parents=[common], help="fit one control mesh to every frame of a sequence")
     p.add_argument("frames", type=Path, nargs="+",
                    help="an NPZ (vertices (T,V,3), faces), or frame files / directories / quoted globs: "
@@ -171,13 +194,26 @@ def _sequence_parser(sub, common) -> None:
     p.add_argument("--reference", type=Path, metavar="NPZ",
                    help="clean meshes in correspondence (vertices (T,V,3), faces), one per frame: "
                         "metrics.csv then measures distances, folds and drift against them")
-    p.add_argument("--frames", dest="frame_range", type=_frame_range, metavar="START:STOP:STEP",
-                   help="fit only these frames (Python slice syntax; applies to the captures and the "
-                        "reference too)")
+    _frames_option(p, "; applies to the captures and the reference too")
     p.add_argument("--animation", metavar="NAME",
                    help="bake this animation of a skinned glTF/GLB into the frames")
     p.add_argument("--fps", type=float, default=24.0,
                    help="frame rate of the baked --animation (default %(default)s)")
+    _sequence_options(p)
+    p.add_argument("--resume", action="store_true",
+                   help="continue after the last finished frame, bit for bit as an uninterrupted run "
+                        "(with the options stored in OUTDIR/sequence.json)")
+    _variant(p)
+
+
+def _frames_option(p, note: str = "") -> None:
+    p.add_argument("--frames", dest="frame_range", type=_frame_range, metavar="START:STOP:STEP",
+                   help=f"fit only these frames (Python slice syntax{note})")
+
+
+def _sequence_options(p) -> None:
+    """The options of :class:`SequenceOptions` and ``--template`` (``fit-sequence`` and ``fit-batch --sequences``)."""
+    o = SequenceOptions
     _template_options(p, o)
     p.add_argument("--poisson-template", action="store_true",
                    help="build the automatic template by screened Poisson even when the first frame is a mesh")
@@ -236,12 +272,46 @@ def _sequence_parser(sub, common) -> None:
     exclusive.add_argument("--image-only", action="store_true", help="image term (+ ARAP) only (baseline)")
     p.add_argument("--deterministic", action="store_true",
                    help="bit-reproducible image term: the reverse render runs on one thread (slower)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue after the last finished frame, bit for bit as an uninterrupted run "
-                        "(with the options stored in OUTDIR/sequence.json)")
     p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(", of the views and of the "
                                                                                 "frames' samples"))
-    _variant(p)
+
+
+BATCH_DESCRIPTION = ("Fit every INPUT like `mi-loop fit INPUT -o OUTDIR/<name>/` (with --sequences: like "
+                     "fit-sequence) on a Dask cluster; OUTDIR/summary.csv lists each input's status, time, worker, "
+                     "error and metrics. A complete OUTDIR/<name>/ is skipped when the batch runs again (remove it "
+                     "to refit), a failed input is fitted again. Not taken with --sequences (they belong to one "
+                     "sequence or run): --images, --emitters, --reference, --animation, --fps, --resume.")
+
+
+def _batch_parser(sub, common) -> None:
+    """``fit-batch`` with fit's options, switching to fit-sequence's when ``--sequences`` is given."""
+    def batch(p, sequences: bool):
+        p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
+                       help="sequences (directories of frames or NPZ files) or quoted globs of them"
+                       if sequences else "point-cloud or mesh files (as for fit) or quoted globs of them")
+        p.add_argument("-o", "--output", required=True, type=Path,
+                       help="output directory: OUTDIR/<input name>/ per input, OUTDIR/summary.csv")
+        where = p.add_mutually_exclusive_group()
+        where.add_argument("--scheduler", metavar="ADDRESS",
+                           help="run on a running Dask cluster: its scheduler's address (tcp://host:port) or "
+                                "the JSON file of `dask scheduler --scheduler-file` (default: a local cluster)")
+        where.add_argument("--workers", type=positive, metavar="N",
+                           help=f"worker processes of the local cluster, one thread each (default {LOCAL_WORKERS})")
+        p.add_argument("--sequences", action="store_true",
+                       help="each input is a sequence, fitted like fit-sequence; the options are then "
+                            "fit-sequence's (see fit-batch --sequences --help)")
+        if sequences:
+            _frames_option(p, "; of every sequence")
+            _sequence_options(p)
+        else:
+            _fit_options(p)
+        _variant(p)
+        return p
+
+    kwargs = {"parents": [common], "description": BATCH_DESCRIPTION}
+    sequences = batch(_Parser(prog="mi-loop fit-batch", **kwargs), True)
+    batch(sub.add_parser("fit-batch", help="fit many inputs on a Dask cluster, one output directory each",
+                         switch=("--sequences", sequences), **kwargs), False)
 
 
 def _frame_range(text: str):
@@ -345,6 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _fit_parser(sub, common)
     _sequence_parser(sub, common)
+    _batch_parser(sub, common)
     _images_parser(sub, common)
     _compare_parser(sub, common)
 

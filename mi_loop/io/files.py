@@ -3,21 +3,22 @@
 Every write goes to a temporary file in the destination's directory, which
 then replaces the destination with :func:`os.replace`, so a crash never leaves
 a half-written file behind; :func:`staged_outputs` makes a set of files appear
-together.
+together, :func:`staged_directory` a whole directory.
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import tempfile
+from glob import escape as glob_escape
 from pathlib import Path
 
 import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["atomic_open", "ensure_writable_dir", "first_missing_ancestor", "remove_if_empty",
-           "staged_outputs", "write_png", "write_text"]
+__all__ = ["STAGING", "atomic_open", "ensure_writable_dir", "first_missing_ancestor", "remove_if_empty",
+           "remove_stale_stages", "staged_directory", "staged_outputs", "write_png", "write_text"]
 
 
 def first_missing_ancestor(path) -> Path | None:
@@ -99,6 +100,83 @@ def staged_outputs(outdir):
         shutil.rmtree(stage, ignore_errors=True)
 
 
+#: Name prefix of :func:`staged_directory`'s staging directories, after ``.`` and the directory's name.
+STAGING = ".staging-"
+
+
+@contextlib.contextmanager
+def staged_directory(path):
+    """Yield a hidden sibling directory of ``path`` that becomes ``path`` when the block succeeds.
+
+    The directory appears whole or not at all: on success the sibling is
+    renamed to ``path`` (an existing directory there is moved aside first, then
+    removed); on failure it is removed and ``path`` stays as it was.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The directory to produce; its parent must exist.
+
+    Yields
+    ------
+    pathlib.Path
+        The staging directory ``.<name>.staging-XXXXXXXX`` beside ``path``: write everything there.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     with staged_directory(Path(d) / "out") as stage:
+    ...         _ = write_text(stage / "a.txt", "a")
+    ...     sorted(p.name for p in Path(d).rglob("*"))
+    ['a.txt', 'out']
+    """
+    import shutil
+
+    path = Path(path)
+    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}{STAGING}", dir=path.parent))
+    try:
+        os.chmod(stage, 0o777 & ~_umask())       # mkdtemp makes 0700 directories
+        yield stage
+        if not path.is_dir():
+            os.replace(stage, path)
+            return
+        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old-", dir=path.parent))
+        try:
+            os.replace(path, old / path.name)
+            try:
+                os.replace(stage, path)
+            except BaseException:
+                os.replace(old / path.name, path)       # put the old one back
+                raise
+        finally:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def remove_stale_stages(path) -> list:
+    """Remove the staging directories that interrupted :func:`staged_directory` blocks left beside ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The directory they were staging.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The directories removed.
+    """
+    import shutil
+
+    path = Path(path)
+    stale = sorted(path.parent.glob(f".{glob_escape(path.name)}{STAGING}*"))
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return stale
+
+
 def ensure_writable_dir(path) -> Path:
     """Create a directory if needed and check that files can be created in it.
 
@@ -134,9 +212,13 @@ def _file_mode(path: Path) -> int:
     try:
         return path.stat().st_mode & 0o7777
     except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
+        return 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
 
 
 @contextlib.contextmanager
