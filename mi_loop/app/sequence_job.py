@@ -360,6 +360,8 @@ def _write_frame(run: _Run, t, name, V, info, target, P, N, t0, log):
     run.pending = []
     log.wrote(*paths)
     extra = f", drift {d['mean']:.2e}" if d is not None else ""
+    if info.get("noise") is not None:   # how much the images counted where the data saw the surface
+        extra += f", data noise {info['noise']:.1e}, image weight there {info['seen_weight']:.2g}"
     log.say(f"frame {t + 1}/{len(run.reader)} {name}: mean {metrics['mean']:.2e} RMS {metrics['rms']:.2e}, "
             f"flipped {flipped:.2f} %{extra} ({seconds:.1f} s, render {info['time_render']:.1f} s)")
     return paths
@@ -421,7 +423,8 @@ def _fit_frames(run: _Run, first, op, vertex_op, renderer, log) -> list:
                 update(sum(steps[:k]) + i, sum(steps), f"frame {t + 1}/{len(run.reader)}")
 
             V, info = sequence.fit_frame(run.x, run.F, Pn, N, op, image, o, t, run.lr, progress=progress,
-                                         rest=run.rest, vertex_op=vertex_op, iterations=steps[k])
+                                         rest=run.rest, vertex_op=vertex_op, iterations=steps[k],
+                                         complete=target is not None)
             if isinstance(image, sequence.PhotoTerm):
                 run.albedo = image.albedo
             paths += _write_frame(run, t, name, V, info, target, P, N if target is None else None, t0, log)

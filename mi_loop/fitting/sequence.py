@@ -28,11 +28,18 @@ between. It is balanced per control vertex:
   ``lambda = options.image_smooth`` (a Sobolev gradient, as in Nicolet et
   al. 2021): Adam normalises each coordinate's step, so unsmoothed Monte
   Carlo noise would move vertices by full steps where depth does not hold them;
-- each vertex's image weight is ``beta k (seen + (1 - seen) (1 - s_i))``,
-  ``s_i`` in [0, 1] the data support at its limit point (1 within three
-  point spacings of a data point facing the same way, 0 beyond six): where depth sees the surface
-  the images count ``options.seen`` as much, where it does not they hold the
-  surface alone (with ARAP).
+- each vertex's image weight is ``beta k (w + (1 - w) (1 - s_i))``,
+  ``s_i`` in [0, 1] the data support at its limit point (:func:`support`:
+  1 within a control edge, or three data spacings if that is more, of a data
+  point facing the same way, 0 beyond twice that; an edge, so that a warm
+  start displaced by the frame's motion still counts as seen): where depth
+  does not see the surface the images hold it alone (with ARAP); where
+  it does, they count ``w = seen min(1, (sigma / (p / 2))^2)``, the data's
+  noise ``sigma`` (:func:`~mi_loop.mesh.points.noise_level`) against half a
+  pixel's width ``p`` at the subject: inverse-variance weighting, so images
+  refine noisy depth but leave accurate geometry (clean mesh frames) alone.
+  Samples of a mesh frame cover the whole surface (``complete``): there
+  every vertex counts as supported, ``s_i = 1``.
 
 IMLS reaches only ``h0 2^reach`` from each sample (:class:`~mi_loop.energies.imls.IMLS`
 ``max_growths``): a sample on a side the depth cameras never saw is not
@@ -46,6 +53,7 @@ import numpy as np
 
 from mi_loop.errors import FitError
 from mi_loop.fitting.options import SequenceOptions
+from mi_loop.mesh.geometry import mean_edge_length
 
 __all__ = ["PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
 
@@ -106,6 +114,15 @@ class RenderedTerm:
         self.renderer, self.targets = renderer, targets
         self.n_views = len(renderer.views)
 
+    def pixel_size(self) -> float:
+        """Width of one pixel at the subject's centre, in the fit's units (the rig's: unit box)."""
+        from mi_loop.render.scene import look_at_distance
+
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in self.renderer.bbox)
+        fov = 35.0                      # the rig's field of view (scene_dict's default)
+        d = look_at_distance(0.5 * float(np.linalg.norm(hi - lo)), fov)
+        return 2.0 * d * float(np.tan(np.radians(fov) / 2)) / self.renderer.options.resolution
+
     def gradient(self, V, view_ids, seed: int):
         """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box) over ``view_ids``."""
         import drjit as dr
@@ -149,6 +166,12 @@ class PhotoTerm:
                                                                uniform=False)
         self.opt.x, self.opt.lr = self.albedo.copy(), max(self.albedo_lr, 1e-12)
 
+    def pixel_size(self) -> float:
+        """Median over the cameras of one pixel's width at the subject's centre, in the fit's units (unit box)."""
+        centre = np.asarray(self.norm.inverse(np.zeros(3)), dtype=np.float64)
+        widths = [np.linalg.norm(v.camera.c2w[:3, 3] - centre) / v.camera.fx for v in self.renderer.views]
+        return float(np.median(widths)) / self.norm.scale
+
     def gradient(self, V, view_ids, seed: int):
         """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box); steps the albedo."""
         import drjit as dr
@@ -167,7 +190,7 @@ class PhotoTerm:
 
 
 def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame: int, lr: float,
-              progress=None, *, rest=None, vertex_op=None, iterations: int | None = None):
+              progress=None, *, rest=None, vertex_op=None, iterations: int | None = None, complete: bool = False):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     Adam on the gradients of ``E_t`` (module docstring): ``iterations``
@@ -205,6 +228,10 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         of the image weights; without it the control points stand in.
     iterations : int, optional
         Steps for this frame (the first frame takes more).
+    complete : bool, optional
+        The data cover the whole surface (samples of a mesh frame): every
+        control vertex counts as supported, so the images weigh ``w``
+        everywhere (module docstring) instead of holding unseen parts.
 
     Returns
     -------
@@ -235,10 +262,6 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     arap_rest = ARAP(rest, F) if rest is not None and options.alpha_rest > 0 else None
     imls = IMLS(points, normals, max_growths=options.reach) if options.geometric else None
     cover = Coverage(points, normals, tree=imls.tree) if options.geometric and options.cover > 0 else None
-    spacing = None                      # median nearest-neighbour spacing of the data: the support radius
-    if imls is not None:
-        P = imls.points[::max(1, len(imls.points) // 2000)]
-        spacing = float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
     alpha_t = dr.opaque(mi.Float, options.alpha / n)
     alpha_r = dr.opaque(mi.Float, options.alpha_rest / n)
     fold = None
@@ -261,6 +284,16 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     order = []
     history = {"geo": [], "image": []}
     t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
+    noise, seen_weight, support_radius = None, options.seen, None
+    if use_image and imls is not None:   # how much the images count where the data sees the surface
+        from mi_loop.mesh.points import noise_level
+
+        noise = noise_level(imls.points, tree=imls.tree)
+        seen_weight = options.seen * min(1.0, (noise / (0.5 * image.pixel_size())) ** 2)
+        # Full support within a control edge of facing data (a warm start moved by up to an edge still counts
+        # as seen) or three data spacings, if larger.
+        spacing = float(np.median(imls.tree.query(imls.points[::max(1, len(imls.points) // 2000)], k=2)[0][:, 1]))
+        support_radius = max(3.0 * spacing, mean_edge_length(x0, F))
     for it in range(n_it):
         x = ControlPoints(opt["x"])       # shared by ARAP and the limit operator
         Vn = x.numpy()
@@ -295,7 +328,10 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         loss = np.nan
         if use_image and it % options.image_every == 0:
             if refresh or weights is None:
-                weights, s = _image_weights(Vn, vertex_op, imls, spacing, options)
+                if complete and imls is not None:   # a mesh frame: the data see every part of the surface
+                    weights, s = np.full(n, options.beta * seen_weight), np.ones(n)
+                else:
+                    weights, s = _image_weights(Vn, vertex_op, imls, support_radius, seen_weight, options)
                 seen = float(np.mean(s > 0.5)) if s is not None else 0.0
             t = time.perf_counter()
             if len(order) < options.views_per_iteration:
@@ -322,7 +358,8 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
             progress(it + 1, n_it)
     V = np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
     return V, {"history": history, "time_render": t_render, "iterations": n_it,
-               "image_scale": float(k_scale) if k_scale is not None else None, "seen": float(seen)}
+               "image_scale": float(k_scale) if k_scale is not None else None, "seen": float(seen),
+               "noise": noise, "seen_weight": float(seen_weight)}
 
 
 def _sample_normals(op, Vn):
@@ -336,8 +373,8 @@ def _sample_normals(op, Vn):
         return np.array(op.normals(mi.Float(np.asarray(Vn, dtype=np.float32).ravel())), dtype=np.float64).T
 
 
-def _image_weights(Vn, vertex_op, imls, spacing: float, options: SequenceOptions):
-    """Per-vertex image weights ``beta (seen + (1 - seen)(1 - s_i))`` and the supports ``s`` (None: images only)."""
+def _image_weights(Vn, vertex_op, imls, radius: float, w: float, options: SequenceOptions):
+    """Per-vertex image weights ``beta (w + (1 - w)(1 - s_i))`` and the supports ``s`` (None: images only)."""
     import mitsuba as mi
 
     if imls is None:                    # images only: the same weight everywhere
@@ -348,8 +385,8 @@ def _image_weights(Vn, vertex_op, imls, spacing: float, options: SequenceOptions
         Nq = _sample_normals(vertex_op, Vn)
     else:
         Q = Vn
-    s = support(Q, imls.tree, 3.0 * spacing, Nq, imls.normals if Nq is not None else None)
-    return options.beta * (options.seen + (1.0 - options.seen) * (1.0 - s)), s
+    s = support(Q, imls.tree, radius, Nq, imls.normals if Nq is not None else None)
+    return options.beta * (w + (1.0 - w) * (1.0 - s)), s
 
 
 def _image_scale(g_geo, g_image, s, options: SequenceOptions) -> float:

@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from mi_loop.energies.coverage import Coverage
 from mi_loop.energies.imls import IMLS
-from mi_loop.fitting.sequence import support
+from mi_loop.fitting.sequence import PhotoTerm, RenderedTerm, support
 
 
 def slab(n=21, gap=0.1):
@@ -65,3 +65,91 @@ def test_the_photo_renderer_takes_new_photos_from_the_same_cameras_only():
     other = render_views(0.7 * V, F, fibonacci_cameras(2, [0, 0, 0], 4.0, fov_x_deg=40, width=16, height=16),
                          lights, spp=4)
     assert not r.set_photos(other)
+
+
+# --- pixel widths and the noise-aware image weight --------------------------------------------
+
+def test_the_rig_pixel_width_is_what_mitsubas_own_sensor_sees_at_the_subject():
+    """Rays through two neighbouring pixels of the rig's sensor, cut by the plane through the box centre."""
+    import mitsuba as mi
+
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.render.multiview import Renderer
+
+    from helpers import CAMERA_BOX, sphere_mesh
+
+    V, F = sphere_mesh(0.4, 1)
+    options = SequenceOptions(views=3, resolution=40)
+    renderer = Renderer(V, F, CAMERA_BOX, options.rig)
+    centre = 0.5 * (CAMERA_BOX[0] + CAMERA_BOX[1])
+    for sensor in renderer.scene.sensors():
+        hits = []
+        for px in (19.5, 20.5):        # neighbouring pixel centres on the middle row
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(px / 40, 0.5), mi.Point2f(0.5, 0.5))
+            o, d = np.array(ray.o).ravel(), np.array(ray.d).ravel()
+            axis = (centre - o) / np.linalg.norm(centre - o)
+            hits.append(o + d * ((centre - o) @ axis) / (d @ axis))
+        width = float(np.linalg.norm(hits[1] - hits[0]))
+        assert abs(RenderedTerm(renderer, []).pixel_size() / width - 1) < 1e-3, width
+
+
+def test_the_photo_pixel_width_projects_to_one_pixel_at_the_subject():
+    from types import SimpleNamespace
+
+    from mi_loop.fitting.static import Normalisation
+    from mi_loop.render.cameras import fibonacci_cameras, project
+
+    centre, scale = np.array([1.0, 2.0, -1.0]), 4.0
+    cams = fibonacci_cameras(5, centre, 10.0, fov_x_deg=40, width=64, height=48)
+    term = PhotoTerm(SimpleNamespace(views=[SimpleNamespace(camera=c) for c in cams]),
+                     Normalisation(centre=centre, scale=scale), np.zeros((4, 3)), 0.0)
+    p = term.pixel_size() * scale             # unit box -> capture units
+    for c in cams:
+        right = c.c2w[:3, 0]
+        x = project(c, np.stack([centre, centre + p * right]))
+        assert abs(np.linalg.norm(x[1] - x[0]) - 1.0) < 1e-9
+
+
+def _weights_after_one_step(noise_sigma, *, half=False, complete=False):
+    """``info`` of a one-iteration fit to sphere points with noise (``half``: the z > 0 half only)."""
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.fitting.sequence import fit_frame
+    from mi_loop.fitting.static import sample_parameters
+    from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.render.multiview import Renderer
+
+    from helpers import CAMERA_BOX, sphere_mesh
+
+    V0, F = sphere_mesh(0.45, 1)
+    Vt, Ft = sphere_mesh(0.45, 4)
+    P, N, _ = sample_surface(Vt, Ft, 20_000, seed=0)
+    P = P + noise_sigma * np.random.default_rng(1).normal(size=(len(P), 1)) * N
+    if half:
+        P, N = P[P[:, 2] > 0], N[P[:, 2] > 0]
+    options = SequenceOptions(views=2, views_per_iteration=1, resolution=128, spp=1, target_spp=2, level=0,
+                              geo_iterations=1, image_every=1)
+    renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
+    term = RenderedTerm(renderer, renderer.targets(Vt, Ft))
+    op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=True)
+    _, info = fit_frame(V0, F, P, N, op, term, options, frame=0, lr=1e-3, complete=complete)
+    return info, term.pixel_size()
+
+
+def test_images_count_where_the_data_sees_the_surface_only_as_much_as_its_noise_warrants():
+    """w = seen min(1, (2 sigma / p)^2): ~0 for clean samples, seen for noise above half a pixel."""
+    clean, p = _weights_after_one_step(0.0)
+    assert clean["noise"] < 0.02 * p and clean["seen_weight"] < 1e-3 * 0.1, clean
+    sigma = 0.15 * p                                              # (2 sigma / p)^2 = 0.09
+    noisy, _ = _weights_after_one_step(sigma)
+    assert abs(noisy["noise"] / sigma - 1) < 0.15, (noisy["noise"], sigma)
+    assert abs(noisy["seen_weight"] / (0.1 * (2 * noisy["noise"] / p) ** 2) - 1) < 1e-9
+    loud, _ = _weights_after_one_step(3 * p)
+    assert loud["seen_weight"] == 0.1                             # capped at options.seen
+
+
+def test_partial_data_leaves_the_unseen_half_to_the_images_but_a_complete_frame_does_not():
+    partial, _ = _weights_after_one_step(0.0, half=True)
+    assert 0.5 < partial["seen"] < 0.9, partial["seen"]   # the far half, beyond a control edge, unsupported
+    complete, _ = _weights_after_one_step(0.0, half=True, complete=True)
+    assert complete["seen"] == 1.0

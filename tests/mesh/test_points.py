@@ -59,3 +59,44 @@ def test_estimate_normals_is_deterministic():
     out = subprocess.run([sys.executable, "-c", code], input=P.tobytes(), capture_output=True, env=env, cwd=REPO,
                          check=True, timeout=120)
     assert out.stdout.decode().strip() == hashlib.sha256(first.tobytes()).hexdigest()
+
+
+# --- noise_level ------------------------------------------------------------------------------
+
+def _plane(n, sigma, seed):
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-1, 1, size=(n, 2)), sigma * rng.normal(size=n)]
+
+
+@pytest.mark.parametrize("sigma", [0.0005, 0.001, 0.003])   # below 1/10 of the neighbourhood (0.03)
+def test_noise_level_recovers_the_sigma_of_gaussian_noise_on_a_plane(sigma):
+    from mi_loop.mesh.points import noise_level
+
+    est = noise_level(_plane(30_000, sigma, seed=2))
+    assert abs(est / sigma - 1) < 0.1, (sigma, est)
+
+
+def test_noise_level_sees_no_noise_in_curvature_and_is_invariant_to_rigid_motion_and_scale():
+    from mi_loop.mesh.points import noise_level
+
+    U = sphere_points(20_000, seed=3)[0]
+    assert noise_level(0.5 * U) < 1e-5 * 0.5                      # a clean sphere: curvature, not noise
+    rng = np.random.default_rng(4)
+    noisy = U * (1 + 0.005 * rng.normal(size=(len(U), 1)))
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    a, b = noise_level(noisy), noise_level(3.0 * noisy @ Q.T + [1.0, -2.0, 5.0])
+    assert abs(a / 0.005 - 1) < 0.1, a
+    assert abs(b / a - 3.0) < 1e-6, (a, b)
+
+
+@pytest.mark.parametrize("points, k, message", [
+    (np.zeros((20, 3)), 24, r"noise_level\(\): expected points of shape \(N, 3\) with N > k = 24, got shape \(20, 3\)"),
+    (np.zeros((100, 2)), 24, r"expected points of shape \(N, 3\) .* got shape \(100, 2\)"),
+    (np.zeros((100, 3)), 5, r"noise_level\(\): expected k an integer >= 10, got 5"),
+    (np.zeros((100, 3)), 12.0, r"expected k an integer >= 10, got 12.0"),
+])
+def test_noise_level_rejects_bad_input(points, k, message):
+    from mi_loop.mesh.points import noise_level
+
+    with pytest.raises(ValueError, match=message):
+        noise_level(points, k=k)
