@@ -195,6 +195,10 @@ def bench_drjit(op, V, runs, res):
     res["dr fwd+bwd P"] = stats(timed(fwd_bwd(False), runs, warmup=2)[0])
     ts, g = timed(fwd_bwd(True), runs, warmup=2)
     res["dr fwd+bwd P,du,dv"] = stats(ts)
+    # The bandwidth yardstick of the issue: NumPy copying the operator's bytes (non-zeros x 8) once.
+    buf = np.zeros(2 * res["nnz W"], dtype=np.float32)
+    res["memcpy nnz x 8 B"] = stats(timed(buf.copy, runs, warmup=1)[0])
+    res["fwd+bwd P / memcpy"] = res["dr fwd+bwd P"][1] / res["memcpy nnz x 8 B"][1]
     return g
 
 
@@ -268,9 +272,51 @@ def compare_lagrange(V, F, level, fid, uv, op, res):
     res["osd tangents float32-exact (fraction)"] = float(np.mean(T.astype(np.float32) == T))
 
 
+# -- the vertex limit and ARAP on the thesis's control meshes ---------------------------
+CONTROL = Path(__file__).resolve().parents[2] / "shared" / "data" / "control"
+#: The thesis code's limit Jacobian at the control vertices on this machine class (BRIEF): seconds.
+THESIS_VERTEX_LIMIT = {"bunny_4667": 17.4, "lucy_8002": 63.6}
+
+
+def bench_vertex(runs):
+    """limit_positions / limit_masks / limit_matrix at the corners, and ARAP rotations, on bunny_4667, lucy_8002."""
+    print(f"\n## vertex limit and ARAP rotations ({load()})")
+    print("| mesh | limit_positions ms | limit_masks ms | limit_matrix at corners ms | tangent_masks ms "
+          "| thesis s | speed-up (limit_masks) | ARAP rotations ms | SVD rotations ms | covariances ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, thesis in THESIS_VERTEX_LIMIT.items():
+        print(_vertex_row(name, thesis, runs))
+
+
+def _vertex_row(name, thesis, runs):
+    import trimesh
+
+    import mi_loop
+    from mi_loop.energies.arap import ARAP
+    from mi_loop.energies.rotations import svd_rotations
+    from mi_loop.subdiv.masks import tangent_masks, vertex_samples
+
+    m = trimesh.load(CONTROL / f"{name}.ply", process=False)
+    V, F = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces)
+    n = len(V)
+    fid, uv = vertex_samples(F, n)
+    pos = stats(timed(lambda: mi_loop.limit_positions(V, F), runs, warmup=1)[0])
+    masks = stats(timed(lambda: mi_loop.limit_masks(F, n), runs, warmup=1)[0])
+    corners = stats(timed(lambda: mi_loop.limit_matrix(F, n, fid, uv), runs, warmup=1)[0])
+    tangents = stats(timed(lambda: tangent_masks(F, n), max(1, runs // 2))[0])
+    arap = ARAP(V, F)
+    V2 = V + 0.01 * np.linalg.norm(V.max(0) - V.min(0)) * np.random.default_rng(0).normal(size=V.shape)
+    rot = stats(timed(lambda: arap.rotations(V2), 10 * runs, warmup=2)[0])
+    S = arap.covariances(V2)
+    svd = stats(timed(lambda: svd_rotations(S), 10 * runs, warmup=2)[0])
+    cov = stats(timed(lambda: arap.covariances(V2), 10 * runs, warmup=2)[0])
+    return (f"| {name} | {pos[1]:.1f} | {masks[1]:.1f} | {corners[1]:.1f} | {tangents[1]:.0f} | {thesis} "
+            f"| {1e3 * thesis / masks[1]:.0f}x | {rot[1]:.2f} | {svd[1]:.2f} | {cov[1]:.2f} |")
+
+
 # -- report ----------------------------------------------------------------------
 TIMED = ["hierarchy", "rows", "composed S_L", "op build (P)", "op build (P,du,dv)", "op.matrix()",
-         "scipy W @ V", "dr fwd P", "dr fwd P,du,dv", "dr fwd+bwd P", "dr fwd+bwd P,du,dv",
+         "scipy W @ V", "dr fwd P", "dr fwd P,du,dv", "dr fwd+bwd P", "dr fwd+bwd P,du,dv", "memcpy nnz x 8 B",
          "osd limit (P)", "osd limit (P,T,B,N)"]
 
 PER_MESH = {"hierarchy", "composed S_L"}   # independent of the samples
@@ -298,6 +344,8 @@ def main():
     ap.add_argument("--no-lagrange", action="store_true", help="skip the OpenSubdiv comparison")
     ap.add_argument("--mesh", choices=["icosphere", "armadillo"], action="append",
                     help="restrict to one mesh (repeatable)")
+    ap.add_argument("--part", choices=["operator", "vertex"], action="append",
+                    help="operator (build and apply) and/or vertex (vertex limit, ARAP rotations); default both")
     args = ap.parse_args()
     target = args.samples or (100_000 if args.quick else 1_000_000)
     runs = args.runs or (2 if args.quick else 5)
@@ -314,8 +362,11 @@ def main():
     print(f"# bench_limit  {time.strftime('%Y-%m-%d %H:%M')}  nproc={os.cpu_count()}  "
           f"cpu={cpu_model()}  drjit threads={dr.thread_count()}  mitsuba {mi.__version__}  "
           f"drjit {dr.__version__}  mi_loop {code_version()}  runs={runs}  {load()}")
+    parts = args.part or ["operator", "vertex"]
+    if "vertex" in parts:
+        bench_vertex(runs)
     meshes = {"icosphere": icosphere, "armadillo": armadillo}
-    for mesh_name in args.mesh or list(meshes):
+    for mesh_name in (args.mesh or list(meshes)) if "operator" in parts else []:
         t0 = time.perf_counter()
         V, F = meshes[mesh_name]()
         print(f"\n## {mesh_name}: {len(V)} vertices, {len(F)} faces "

@@ -21,6 +21,7 @@ before anything runs.
 from __future__ import annotations
 
 import glob
+import os
 import threading
 import time
 import uuid
@@ -94,12 +95,15 @@ class WorkerSetup(WorkerPlugin):
     ----------
     variant : str
         The Mitsuba variant of the batch's fits.
+    threads : int, optional
+        Dr.Jit threads per worker (a local cluster shares the machine's cores
+        between its workers); None keeps Dr.Jit's default, every core.
     """
 
     name = "mi-loop-worker-setup"
 
-    def __init__(self, variant: str = DEFAULT_VARIANT):
-        self.variant = variant
+    def __init__(self, variant: str = DEFAULT_VARIANT, threads: int | None = None):
+        self.variant, self.threads = variant, threads
 
     def setup(self, worker) -> None:
         import pymeshlab  # noqa: F401
@@ -107,6 +111,10 @@ class WorkerSetup(WorkerPlugin):
         from mi_loop.render.variant import set_variant
 
         set_variant(self.variant)
+        if self.threads is not None:
+            import drjit as dr
+
+            dr.set_thread_count(self.threads)
 
 
 class _TaskLog(Reporter):
@@ -330,7 +338,7 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
     BatchError
         When every input has finished and some failed.
     """
-    from mi_loop.app.cluster import connect, scheduler_address
+    from mi_loop.app.cluster import LOCAL_WORKERS, connect, scheduler_address
     from mi_loop.fitting.options import SequenceOptions
     from mi_loop.io.files import remove_stale_stages
 
@@ -357,7 +365,9 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
             for task in todo:
                 remove_stale_stages(task.output)
             with connect(scheduler, workers, log) as client:
-                client.register_plugin(WorkerSetup(variant))
+                # A local cluster's workers share this machine: its cores split between them.
+                threads = max(1, (os.cpu_count() or 1) // (workers or LOCAL_WORKERS)) if scheduler is None else None
+                client.register_plugin(WorkerSetup(variant, threads))
                 write_summary(summary, names, rows, sequence)
                 _collect(client, todo, names, rows, summary, Path(output), log)
         else:
