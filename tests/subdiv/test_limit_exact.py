@@ -468,3 +468,21 @@ def test_dart_normal_respects_mirror_symmetry():
     np.testing.assert_allclose(near, expected, rtol=0, atol=1e-8)  # the surface's own tangent plane
     N = mi_loop.limit_normals(V, F, creases=creases)
     np.testing.assert_allclose(N[0], expected, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", MESH_NAMES)
+def test_closed_form_vertex_masks_equal_the_hierarchys_rows(name):
+    """limit_masks (closed forms; the hierarchy for darts and semi-sharp vertices) against the rows of the
+    refined hierarchy at the same corners; limit_matrix takes the closed forms only when every sample is
+    at a corner."""
+    from mi_loop.subdiv.masks import _masks, vertex_samples
+
+    mesh = meshes.MESHES[name]
+    n = len(mesh.V)
+    fast = mi_loop.limit_masks(mesh.F, n, creases=mesh.creases).toarray()
+    slow = _masks(mesh.F, n, mesh.creases, (None,), "test")[0].toarray()
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-14, err_msg=name)
+    face_ids, uv = vertex_samples(mesh.F, n)
+    mixed = mi_loop.limit_matrix(mesh.F, n, np.r_[face_ids, 0], np.r_[uv, [[0.25, 0.25]]],
+                                 creases=mesh.creases).toarray()          # one inner sample: the hierarchy
+    np.testing.assert_allclose(mixed[:n], fast, rtol=0, atol=1e-14, err_msg=name)
