@@ -191,11 +191,11 @@ class SequenceOptions:
         scaled to its RMS at each frame's first render; see
         :mod:`mi_loop.fitting.sequence`).
     seen : float
-        Largest image weight where the data supports the surface, relative to
-        where it does not (in [0, 1]); it is scaled by ``min(1, (2 sigma / p)^2)``,
-        the data's estimated noise against the pixel width at the subject, so
-        images hold what depth never saw, refine noisy depth and do not pull
-        accurate geometry off.
+        Image weight where the data supports the surface, relative to where it
+        does not (in [0, 1]): images hold what depth never saw and do not pull
+        accurate geometry off. For mesh frames it is scaled by
+        ``min(1, (2 sigma / p)^2)``, the mesh's roughness against the pixel
+        width at the subject (see :mod:`mi_loop.fitting.sequence`).
     image_smooth : float
         ``lambda`` of the ``(I + lambda L)^-1`` smoothing of the image gradient (0: off).
     reach : int

@@ -30,16 +30,17 @@ between. It is balanced per control vertex:
   Carlo noise would move vertices by full steps where depth does not hold them;
 - each vertex's image weight is ``beta k (w + (1 - w) (1 - s_i))``,
   ``s_i`` in [0, 1] the data support at its limit point (:func:`support`:
-  1 within a control edge, or three data spacings if that is more, of a data
-  point facing the same way, 0 beyond twice that; an edge, so that a warm
-  start displaced by the frame's motion still counts as seen): where depth
-  does not see the surface the images hold it alone (with ARAP); where
-  it does, they count ``w = seen min(1, (sigma / (p / 2))^2)``, the data's
-  noise ``sigma`` (:func:`~mi_loop.mesh.points.noise_level`) against half a
-  pixel's width ``p`` at the subject: inverse-variance weighting, so images
-  refine noisy depth but leave accurate geometry (clean mesh frames) alone.
-  Samples of a mesh frame cover the whole surface (``complete``): there
-  every vertex counts as supported, ``s_i = 1``.
+  1 within three point spacings of a data point facing the same way, 0
+  beyond six): where depth does not see the surface the images hold it
+  alone (with ARAP); where it does, they count ``w = options.seen`` as much.
+- samples of a mesh frame cover the whole surface (``complete``): there
+  every vertex counts as seen, ``s_i = 1``, and ``w = seen min(1, (sigma /
+  (p / 2))^2)``, the mesh's roughness ``sigma`` (residuals of local quadric
+  fits, :func:`~mi_loop.mesh.points.noise_level`) against half a pixel's
+  width ``p`` at the subject: inverse-variance weighting, so renders refine a
+  noisy mesh but leave an accurate one alone. Depth point clouds keep
+  ``w = seen``: their errors are not only noise (one-sided views, grazing
+  rays, holes), and there the photos at the seen parts measurably help.
 
 IMLS reaches only ``h0 2^reach`` from each sample (:class:`~mi_loop.energies.imls.IMLS`
 ``max_growths``): a sample on a side the depth cameras never saw is not
@@ -53,7 +54,6 @@ import numpy as np
 
 from mi_loop.errors import FitError
 from mi_loop.fitting.options import SequenceOptions
-from mi_loop.mesh.geometry import mean_edge_length
 
 __all__ = ["PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
 
@@ -230,8 +230,8 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         Steps for this frame (the first frame takes more).
     complete : bool, optional
         The data cover the whole surface (samples of a mesh frame): every
-        control vertex counts as supported, so the images weigh ``w``
-        everywhere (module docstring) instead of holding unseen parts.
+        control vertex counts as supported, and the images weigh by the
+        data's roughness against the pixel width (module docstring).
 
     Returns
     -------
@@ -285,15 +285,14 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     history = {"geo": [], "image": []}
     t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
     noise, seen_weight, support_radius = None, options.seen, None
-    if use_image and imls is not None:   # how much the images count where the data sees the surface
+    if use_image and imls is not None and complete:   # a mesh frame: renders weigh by its roughness
         from mi_loop.mesh.points import noise_level
 
         noise = noise_level(imls.points, tree=imls.tree)
         seen_weight = options.seen * min(1.0, (noise / (0.5 * image.pixel_size())) ** 2)
-        # Full support within a control edge of facing data (a warm start moved by up to an edge still counts
-        # as seen) or three data spacings, if larger.
-        spacing = float(np.median(imls.tree.query(imls.points[::max(1, len(imls.points) // 2000)], k=2)[0][:, 1]))
-        support_radius = max(3.0 * spacing, mean_edge_length(x0, F))
+    elif use_image and imls is not None:              # full support within three data spacings
+        P = imls.points[::max(1, len(imls.points) // 2000)]
+        support_radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
     for it in range(n_it):
         x = ControlPoints(opt["x"])       # shared by ARAP and the limit operator
         Vn = x.numpy()
