@@ -38,7 +38,8 @@ between. It is balanced per control vertex:
   (p / 2))^2)``, the mesh's roughness ``sigma`` (residuals of local quadric
   fits, :func:`~mi_loop.mesh.points.noise_level`) against half a pixel's
   width ``p`` at the subject: inverse-variance weighting, so renders refine a
-  noisy mesh but leave an accurate one alone. Depth point clouds keep
+  noisy mesh but leave an accurate one alone (below :data:`MIN_IMAGE_WEIGHT`
+  the renders are skipped). Depth point clouds keep
   ``w = seen``: their errors are not only noise (one-sided views, grazing
   rays, holes), and there the photos at the seen parts measurably help.
 
@@ -55,7 +56,10 @@ import numpy as np
 from mi_loop.errors import FitError
 from mi_loop.fitting.options import SequenceOptions
 
-__all__ = ["PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
+__all__ = ["MIN_IMAGE_WEIGHT", "PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
+
+#: A mesh frame's renders are skipped when their weight ``beta w`` (relative to the geometric gradient) is below.
+MIN_IMAGE_WEIGHT = 0.01
 
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
@@ -290,6 +294,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
 
         noise = noise_level(imls.points, tree=imls.tree)
         seen_weight = options.seen * min(1.0, (noise / (0.5 * image.pixel_size())) ** 2)
+        use_image = options.beta * seen_weight >= MIN_IMAGE_WEIGHT    # else the renders would move nothing
     elif use_image and imls is not None:              # full support within three data spacings
         P = imls.points[::max(1, len(imls.points) // 2000)]
         support_radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))

@@ -30,9 +30,14 @@ FAST = ["--views", "4", "--res", "24", "--spp", "2", "--iterations", "20", "--fi
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
-    """A 3-frame NPZ of a growing, moving icosphere(2) and an icosphere(1) template file."""
+    """A 3-frame NPZ of a growing, moving, rough icosphere(2) and an icosphere(1) template file.
+
+    Rough (radial noise of 3 %): with ``--seen 1`` the renders of the frames count (a clean mesh
+    frame's renders are skipped: see mi_loop.fitting.sequence.MIN_IMAGE_WEIGHT).
+    """
     root = tmp_path_factory.mktemp("inputs")
     V, F = datasets.icosphere(2)
+    V = V * (1 + 0.03 * np.random.default_rng(0).standard_normal((len(V), 1)))
     frames = np.stack([V * (1 + 0.1 * t) + [0.05 * t, 0.0, 0.0] for t in range(3)])
     np.savez(root / "seq.npz", vertices=frames, faces=F)
     Vc, Fc = datasets.icosphere(1)
@@ -55,9 +60,9 @@ def run_ok(args):
 
 @pytest.fixture(scope="module")
 def image_run(inputs, tmp_path_factory):
-    """Output directory of one run with the image term."""
+    """Output directory of one run with the image term (``--seen 1``: the rough frames' renders count)."""
     out = tmp_path_factory.mktemp("image_run") / "out"
-    run_ok(argv(inputs, out))
+    run_ok(argv(inputs, out, "--seen", "1"))
     return out
 
 

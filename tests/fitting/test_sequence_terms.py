@@ -140,10 +140,12 @@ def test_renders_of_a_mesh_frame_count_only_as_much_as_its_roughness_warrants():
     """Complete (mesh) frames: w = seen min(1, (2 sigma / p)^2), ~0 for a clean mesh; point clouds: w = seen."""
     clean, p = _weights_after_one_step(0.0, complete=True)
     assert clean["noise"] < 0.02 * p and clean["seen_weight"] < 1e-3 * 0.1, clean
+    assert clean["time_render"] == 0.0                            # beta w below MIN_IMAGE_WEIGHT: no renders
     sigma = 0.15 * p                                              # (2 sigma / p)^2 = 0.09
     noisy, _ = _weights_after_one_step(sigma, complete=True)
     assert abs(noisy["noise"] / sigma - 1) < 0.15, (noisy["noise"], sigma)
     assert abs(noisy["seen_weight"] / (0.1 * (2 * noisy["noise"] / p) ** 2) - 1) < 1e-9
+    assert noisy["time_render"] > 0.0
     loud, _ = _weights_after_one_step(3 * p, complete=True)
     assert loud["seen_weight"] == 0.1                             # capped at options.seen
     points, _ = _weights_after_one_step(0.0)
