@@ -176,36 +176,3 @@ def test_operator_rejects_wrong_control_points():
     op_p = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]), derivatives=False)
     with pytest.raises(ValueError, match="built with derivatives=False"):
         op_p.evaluate(mi.Float(TET_V.ravel()))
-
-
-def test_custom_op_rows_and_transposed_rows_equal_the_scipy_matrices_with_wide_rows_and_chunks():
-    """Valence 12 (patches of 18 points: the second table), 3000 samples (columns of many chunks).
-
-    Reverse mode against ``W_d^T y_d`` summed over positions and both derivatives, forward mode
-    against ``W_d x'``, and two reverse passes bit for bit.
-    """
-    mesh = bipyramid(12)
-    fid, uv = _samples(mesh.F, 3000, seed=3)
-    op = mi_loop.LimitOperator(mesh.F, len(mesh.V), fid, uv)
-    S, rows = op._dev()
-    assert rows.wide is not None and len(rows.idx) == 12          # the extra columns are in use
-    assert dr.width(rows.t_idx[0]) > 4 * rows.n_cols                # several chunks per column
-    rng = np.random.default_rng(4)
-    y = [rng.standard_normal((len(fid), 3)) for _ in range(3)]
-
-    def reverse():
-        x = flat(mesh.V, grad=True)
-        out = op.evaluate(x)
-        dr.backward(sum(dr.sum(dr.sum(o * point3f(w))) for o, w in zip(out, y)))
-        return np.array(dr.grad(x), dtype=np.float64).reshape(-1, 3)
-
-    g = reverse()
-    want = sum(op.matrix(d).T @ w for d, w in zip((None, "u", "v"), y))
-    np.testing.assert_allclose(g, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
-    np.testing.assert_array_equal(g, reverse())                   # no atomics: the same bits
-    direction = rng.standard_normal(mesh.V.shape)
-    x = flat(mesh.V, grad=True)
-    dr.set_grad(x, flat(direction))
-    for o, d in zip(op.evaluate(x), (None, "u", "v")):
-        want = op.matrix(d) @ direction
-        np.testing.assert_allclose(as_numpy(dr.forward_to(o)), want, atol=1e-4 * np.abs(want).max())
