@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Topology"]
+__all__ = ["HalfEdgeTables", "Topology"]
 
 
 @dataclass
@@ -33,6 +33,10 @@ class Topology:
         boundary edges are ``inf``.
     boundary : (e,) bool numpy array
         Edge has one incident face.
+    twin : (3 m,) int64 numpy array, optional
+        Half-edge ``v -> w`` (flat corner index ``3 f + c`` of ``F[f, c] = v``,
+        ``F[f, (c + 1) % 3] = w``) to its opposite ``w -> v``, -1 on a
+        boundary; derived from ``F`` and ``face_edge`` when not given.
 
     Notes
     -----
@@ -49,6 +53,8 @@ class Topology:
     ([[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]], [True, False, True, True, True])
     >>> topo.valence().tolist(), topo.vertex_kind().tolist()
     ([3, 2, 3, 2], [1, 2, 1, 2])
+    >>> topo.twin.tolist()     # corner 2 of face 0 (2 -> 0) is opposite corner 0 of face 1 (0 -> 2)
+    [-1, -1, 3, 2, -1, -1]
     """
 
     F: np.ndarray
@@ -57,6 +63,13 @@ class Topology:
     face_edge: np.ndarray
     sharpness: np.ndarray
     boundary: np.ndarray
+    twin: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.twin is None:
+            self.twin = _twins(np.asarray(self.face_edge).ravel())
+        self._he_sorted = None      # directed-edge keys for half_edge(), built on first use
+        self._walk = None           # half-edge tables for the walks, built on first use
 
     @classmethod
     def build(cls, F: np.ndarray, n: int, sharpness_of=None) -> Topology:
@@ -78,25 +91,42 @@ class Topology:
         F = np.asarray(F, dtype=np.int64)
         a = F.ravel()
         b = F[:, [1, 2, 0]].ravel()
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        keys = lo * n + hi
-        uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        keys = np.minimum(a, b) * n + np.maximum(a, b)
+        # One sort gives the edges (sorted keys), the edge of every corner and
+        # the twins: the two half-edges of an interior edge are neighbours.
+        order = np.argsort(keys)
+        sorted_keys = keys[order]
+        first = np.ones(len(keys), dtype=bool)
+        first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+        uniq = sorted_keys[first]
+        face_edge = np.empty(len(keys), dtype=np.int64)
+        face_edge[order] = np.cumsum(first) - 1
         E = np.stack([uniq // n, uniq % n], axis=1)
+        paired = np.flatnonzero(~first)             # order[i] and order[i - 1] share an edge
+        twin = np.full(len(keys), -1, dtype=np.int64)
+        twin[order[paired]], twin[order[paired - 1]] = order[paired - 1], order[paired]
+        boundary = np.ones(len(E), dtype=bool)
+        boundary[face_edge[order[paired]]] = False
         sharp = np.zeros(len(E))
-        boundary = counts == 1
         sharp[boundary] = np.inf
         if sharpness_of is not None:
             Ec, sc = sharpness_of
             idx = np.searchsorted(uniq, np.minimum(Ec[:, 0], Ec[:, 1]) * n
                                   + np.maximum(Ec[:, 0], Ec[:, 1]))
             sharp[idx] = np.maximum(sharp[idx], sc)
-        # Directed half-edge table for look-ups (v -> w) -> face, corner.
-        he_keys = a * n + b
-        order = np.argsort(he_keys)
-        topo = cls(F, int(n), E, inverse.reshape(-1, 3), sharp, boundary)
-        topo._he_sorted = he_keys[order]
-        topo._he_index = order  # flat index f * 3 + c
-        return topo
+        return cls(F, int(n), E, face_edge.reshape(-1, 3), sharp, boundary, twin)
+
+    # -- half-edge walks -----------------------------------------------------
+    def walk_tables(self) -> HalfEdgeTables:
+        """Return the look-up tables of the half-edge walks (built once per topology).
+
+        Returns
+        -------
+        HalfEdgeTables
+        """
+        if self._walk is None:
+            self._walk = HalfEdgeTables.of(self)
+        return self._walk
 
     # -- look-ups ---------------------------------------------------------
     def half_edge(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -112,6 +142,10 @@ class Topology:
         (k,) int64 numpy array
             Corner index, or -1 where no face has the directed edge.
         """
+        if self._he_sorted is None:
+            he_keys = self.F.ravel() * self.n + self.F[:, [1, 2, 0]].ravel()
+            order = np.argsort(he_keys)
+            self._he_sorted, self._he_index = he_keys[order], order  # flat index f * 3 + c
         v = np.asarray(v, dtype=np.int64)
         w = np.asarray(w, dtype=np.int64)
         valid = (v >= 0) & (w >= 0)
@@ -229,3 +263,73 @@ class Topology:
         kind = np.where(sc >= 3, 2, np.where(sc == 2, 1, 0))
         kind[on_boundary & (self.face_count() == 1)] = 2
         return kind
+
+
+def _twins(corner_edge: np.ndarray) -> np.ndarray:
+    """Opposite half-edge of every corner, -1 on a boundary, from the edge id of every corner."""
+    order = np.argsort(corner_edge, kind="stable")
+    paired = np.flatnonzero(corner_edge[order][1:] == corner_edge[order][:-1]) + 1
+    twin = np.full(len(corner_edge), -1, dtype=np.int64)
+    twin[order[paired]], twin[order[paired - 1]] = order[paired - 1], order[paired]
+    return twin
+
+
+@dataclass
+class HalfEdgeTables:
+    """Look-up tables that turn ring walks into direct indexing.
+
+    Half-edge ``h = 3 f + c`` runs from ``F[f, c]`` (its tail) to
+    ``F[f, (c + 1) % 3]`` (its head). Every table has one entry per half-edge
+    and a last entry for ``h = -1`` (-1, or True for the sharpness tables), so
+    a walk that has ended stays ended without masks. Build it with
+    :meth:`Topology.walk_tables`.
+
+    Parameters
+    ----------
+    head : (3 m + 1,) int64 numpy array
+        Head vertex.
+    prev_vertex : (3 m + 1,) int64 numpy array
+        Third vertex of the face: the neighbour of the tail that follows the
+        head counter-clockwise.
+    ccw : (3 m + 1,) int64 numpy array
+        Half-edge from the tail to ``prev_vertex`` (the next one
+        counter-clockwise around the tail), -1 across a boundary.
+    cw : (3 m + 1,) int64 numpy array
+        Half-edge from the tail to the neighbour that precedes the head
+        (the next one clockwise), -1 across a boundary.
+    sharp : (3 m + 1,) bool numpy array
+        The edge of the half-edge is sharp (boundary, or crease with sharpness > 0).
+    prev_sharp : (3 m + 1,) bool numpy array
+        The edge from the tail to ``prev_vertex`` is sharp.
+
+    Examples
+    --------
+    >>> topo = Topology.build(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> T = topo.walk_tables()
+    >>> int(T.head[0]), int(T.prev_vertex[0]), int(T.ccw[0]), int(T.ccw[T.ccw[0]])   # around vertex 0 from 1
+    (1, 2, 3, -1)
+    """
+
+    head: np.ndarray
+    prev_vertex: np.ndarray
+    ccw: np.ndarray
+    cw: np.ndarray
+    sharp: np.ndarray
+    prev_sharp: np.ndarray
+
+    @classmethod
+    def of(cls, topo: Topology) -> HalfEdgeTables:
+        """Build the tables of a topology (see :meth:`Topology.walk_tables`)."""
+        m3 = 3 * len(topo.F)
+        h = np.arange(m3).reshape(-1, 3)
+        nxt, prv = h[:, [1, 2, 0]].ravel(), h[:, [2, 0, 1]].ravel()
+        corner_vertex = topo.F.ravel()
+        twin = topo.twin
+
+        def padded(a, end):
+            return np.append(a, np.asarray(end, dtype=a.dtype))
+
+        sharp = topo.sharpness[topo.face_edge.ravel()] > 0
+        return cls(head=padded(corner_vertex[nxt], -1), prev_vertex=padded(corner_vertex[prv], -1),
+                   ccw=padded(twin[prv], -1), cw=padded(np.where(twin >= 0, nxt[twin], -1), -1),
+                   sharp=padded(sharp, True), prev_sharp=padded(sharp[prv], True))

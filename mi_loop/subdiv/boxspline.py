@@ -11,7 +11,7 @@ import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["LATTICE", "box_basis"]
+__all__ = ["BLOCK", "LATTICE", "PRODUCT_ROWS", "box_basis", "box_rows"]
 
 #: Axial lattice coordinates of the 12 patch points (Stam's order 1..12).
 LATTICE = np.array([(0, -1), (-1, 0), (1, -1), (0, 0), (-1, 1), (2, -1),
@@ -67,17 +67,72 @@ _MONO3 = [(i, j, 3 - i - j) for i in range(3, -1, -1) for j in range(3 - i, -1, 
 _C, _DU, _DV = _coefficients()
 
 
-def _monomials(wa, wb, wc, degree):
-    pa, pb, pc = [np.ones_like(wa)], [np.ones_like(wb)], [np.ones_like(wc)]
-    for _ in range(degree):
-        pa.append(pa[-1] * wa)
-        pb.append(pb[-1] * wb)
-        pc.append(pc[-1] * wc)
-    monos = _MONO if degree == 4 else _MONO3
-    out = np.empty((len(monos), len(wa)))
-    for m, (i, j, k) in enumerate(monos):
-        np.multiply(pa[i], pb[j], out=out[m])
-        out[m] *= pc[k]
+_COEFFICIENTS = {None: _C, "u": _DU, "v": _DV}
+#: Points per block of monomials in :func:`box_rows` (its temporaries stay in cache).
+BLOCK = 4096
+#: Rows per matrix product: small enough for BLAS (OpenBLAS below 2^18
+#: multiply-adds) to run it on the calling thread, which is faster for these
+#: thin products than handing them to a thread pool, most of all on a busy machine.
+PRODUCT_ROWS = 1024
+
+
+def _raise_degree(M: np.ndarray, d: int, wa, wb, wc) -> np.ndarray:
+    """Monomials of degree ``d + 1`` from those of degree ``d`` (rows (monomial, point), order of :data:`_MONO`).
+
+    Those with a factor ``wa`` come first, in the order of ``M``; then the
+    ``d + 2`` without: the last ``d + 1`` rows of ``M`` times ``wb`` and the
+    last row times ``wc``.
+    """
+    n = len(M)
+    out = np.empty((n + d + 2, M.shape[1]))
+    np.multiply(M, wa, out=out[:n])
+    np.multiply(M[n - d - 1:], wb, out=out[n:n + d + 1])
+    np.multiply(M[-1], wc, out=out[-1])
+    return out
+
+
+def box_rows(u: np.ndarray, v: np.ndarray, derivatives, width: int = 12, scale=None) -> dict:
+    """Evaluate the 12 basis functions and their parametric derivatives into padded rows.
+
+    Parameters
+    ----------
+    u, v : (k,) float64 numpy arrays
+        Patch parameters.
+    derivatives : iterable of None, 'u', 'v'
+        Which rows: the value (None), ``d/du`` or ``d/dv``.
+    width : int
+        Columns of the returned arrays (>= 12); columns 12 and up are zero.
+    scale : (k,) float64 numpy array, optional
+        Factor of every derivative row (not of the value rows).
+
+    Returns
+    -------
+    dict ``{derivative: (k, width) float64 numpy array}``
+
+    Examples
+    --------
+    >>> B = box_rows(np.array([0.2]), np.array([0.3]), (None, "u"), width=13)
+    >>> B[None].shape, round(float(B[None].sum()), 12), float(B["u"][0, 12])
+    ((1, 13), 1.0, 0.0)
+    """
+    names = list(dict.fromkeys(derivatives))
+    k = len(u)
+    out = {d: (np.empty if width == 12 else np.zeros)((k, width)) for d in names}
+    for a in range(0, k, BLOCK):
+        b = min(k, a + BLOCK)
+        wb, wc = u[a:b], v[a:b]
+        wa = 1.0 - wb - wc
+        M3 = _raise_degree(_raise_degree(np.stack([wa, wb, wc]), 1, wa, wb, wc), 2, wa, wb, wc)
+        blocks = [(None, _raise_degree(M3, 3, wa, wb, wc))] if None in out else []
+        if "u" in out or "v" in out:
+            if scale is not None:
+                M3 *= scale[a:b]
+            blocks += [(d, M3) for d in ("u", "v") if d in out]
+        for d, M in blocks:
+            C, W = _COEFFICIENTS[d], out[d]
+            for r in range(0, b - a, PRODUCT_ROWS):
+                e = min(b - a, r + PRODUCT_ROWS)
+                np.matmul(M[:, r:e].T, C, out=W[a + r:a + e, :12])
     return out
 
 
@@ -108,13 +163,7 @@ def box_basis(uv: np.ndarray, derivative: str | None = None) -> np.ndarray:
     >>> bool(np.abs(box_basis(uv, "u").sum(1)).max() < 1e-12)
     True
     """
-    u, v = uv[:, 0], uv[:, 1]
-    wa = 1.0 - u - v
-    # Monomials are built row-major (monomial, point): much faster for large k.
-    if derivative is None:
-        return (_C.T @ _monomials(wa, u, v, 4)).T
-    if derivative == "u":
-        return (_DU.T @ _monomials(wa, u, v, 3)).T
-    if derivative == "v":
-        return (_DV.T @ _monomials(wa, u, v, 3)).T
-    fail("box_basis", "derivative None, 'u' or 'v'", repr(derivative))
+    if derivative not in _COEFFICIENTS:
+        fail("box_basis", "derivative None, 'u' or 'v'", repr(derivative))
+    uv = np.asarray(uv, dtype=np.float64)
+    return box_rows(np.ascontiguousarray(uv[:, 0]), np.ascontiguousarray(uv[:, 1]), (derivative,))[derivative]

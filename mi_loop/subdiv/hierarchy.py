@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from mi_loop.mesh.halfedge import Topology
 from mi_loop.mesh.topology import check_creases, validate_faces
-from mi_loop.subdiv.irregular import build_local
+from mi_loop.subdiv.irregular import build_locals
 from mi_loop.subdiv.patches import (
     corner_regular,
     irregular_points,
@@ -46,6 +46,26 @@ class Hierarchy:
     max_valence : int
         Largest valence at level ``L`` (pads the irregular patch tables).
 
+    Attributes
+    ----------
+    irr_corner : (m_L,) int64
+        Irregular corner (0, 1, 2) of every level-``L`` face, -1 for a regular face.
+    reg_P, reg_pid : (m_L, 12) int64, (m_L,) int64
+        Box-spline points (phantoms as 0) and phantom pattern of regular faces.
+    Phis : (p, 12, 12) float64
+        Phantom matrix of every pattern (see :func:`~mi_loop.subdiv.patches.phantom_matrices`).
+    phantom : (m_L,) bool
+        Regular face whose phantom matrix is not the identity.
+    irr_sig, irr_P : (m_L,) int64, (m_L, 1 + 2 max_valence + 5) int64
+        Local configuration (index into ``locals``, -1 for regular faces) and
+        present patch points (padded with 0) of irregular faces.
+    irr_K : (m_L,) int64
+        Number of patch points of irregular faces (0 for regular faces).
+    locals : list of :class:`~mi_loop.subdiv.irregular.LocalMatrices`
+        One per local configuration.
+    face_P : (m_L, max(12, 1 + 2 max_valence + 5)) int32
+        Patch points of every face (``reg_P`` or ``irr_P``, padded with 0).
+
     Raises
     ------
     RuntimeError
@@ -61,51 +81,46 @@ class Hierarchy:
     def __post_init__(self):
         topo = self.top
         F = topo.F
+        m = len(F)
         kind = topo.vertex_kind()
-        val = topo.valence()
-        reg = np.stack([corner_regular(topo, kind, val, F[:, c], F[:, (c + 1) % 3])
-                        for c in range(3)], 1)
+        reg = corner_regular(topo, kind, topo.valence(), np.arange(3 * m)).reshape(m, 3)
         n_irr = (~reg).sum(1)
         if (n_irr > 1).any():
             f = int(np.argmax(n_irr > 1))
             raise RuntimeError(f"Hierarchy(): internal error: face {f} = {F[f].tolist()} of level {len(self.S)} "
                                f"has {n_irr[f]} irregular corners; please report the control mesh")
         self.irr_corner = np.where(n_irr == 0, -1, np.argmax(~reg, axis=1))
-        m = len(F)
         self.reg_P = np.zeros((m, 12), dtype=np.int64)
         self.reg_pid = np.zeros(m, dtype=np.int64)
         r = np.flatnonzero(self.irr_corner < 0)
-        P = stam_points(topo, F[r, 0], F[r, 1], F[r, 2])
+        P = stam_points(topo, 3 * r)
         self.reg_pid[r], self.Phis = phantom_matrices(P)
         self.reg_P[r] = np.maximum(P, 0)
+        identity = np.array([np.array_equal(Phi, np.eye(12)) for Phi in self.Phis])
+        self.phantom = np.zeros(m, dtype=bool)
+        self.phantom[r] = ~identity[self.reg_pid[r]]
         self._irregular_tables(kind)
+        self.face_P = np.zeros((m, max(12, self.irr_P.shape[1])), dtype=np.int32)
+        self.face_P[r, :12] = self.reg_P[r]
+        g = np.flatnonzero(self.irr_corner >= 0)
+        self.face_P[g, :self.irr_P.shape[1]] = self.irr_P[g]
 
     def _irregular_tables(self, kind):
         topo, mv = self.top, self.max_valence
         g = np.flatnonzero(self.irr_corner >= 0)
         rot = self.irr_corner[g]
-        F = topo.F[g]
-        r = np.arange(len(g))
-        v, ri, rj = F[r, rot], F[r, (rot + 1) % 3], F[r, (rot + 2) % 3]
-        P = irregular_points(topo, v, ri, rj, mv)
+        P, sharp = irregular_points(topo, 3 * g + rot, mv)
         ok = P >= 0
-        sector = ok.copy()
-        sector[:, 0] = False
-        sector[:, 1 + 2 * mv:] = False
-        sharp = np.zeros_like(ok)
-        sharp[sector] = topo.edge_sharp(np.broadcast_to(v[:, None], P.shape)[sector], P[sector])
-        sig_arr = np.concatenate([ok, sharp, kind[v][:, None] == np.arange(3)], 1)
-        _, first, sig = np.unique(np.packbits(sig_arr, axis=1), axis=0,
-                                  return_index=True, return_inverse=True)
+        sig_arr = np.concatenate([ok, sharp, kind[P[:, 0]][:, None] == np.arange(3)], 1)
+        first, sig = _group_rows(sig_arr)
         self.irr_sig = np.full(len(topo.F), -1, dtype=np.int64)
         self.irr_sig[g] = sig
         order = np.argsort(~ok, axis=1, kind="stable")  # present slots first, in order
         self.irr_P = np.zeros((len(topo.F), P.shape[1]), dtype=np.int64)
         self.irr_P[g] = np.maximum(np.take_along_axis(P, order, 1), 0)
-        self.locals = []
-        if len(g):
-            S_next, fine = subdivide_topology(topo)
-            self.locals = [build_local(topo, fine, S_next, g[i], rot[i], mv) for i in first]
+        self.irr_K = np.zeros(len(topo.F), dtype=np.int64)
+        self.irr_K[g] = ok.sum(1)
+        self.locals = build_locals(topo, g[first], rot[first], mv)
 
     @property
     def top(self) -> Topology:
@@ -123,6 +138,26 @@ class Hierarchy:
         for S in self.S[1:]:
             M = S @ M
         return M.tocsr()
+
+
+def _group_rows(bits: np.ndarray):
+    """Distinct rows of a bool array in lexicographic order: first occurrences ``(u,)`` and group of every row.
+
+    As ``np.unique(np.packbits(bits, axis=1), axis=0, return_index=True,
+    return_inverse=True)``, with the packed rows read as big-endian 64-bit
+    words so that the sort is on a few integer columns.
+    """
+    packed = np.packbits(bits, axis=1)
+    words = np.zeros((len(bits), -(-packed.shape[1] // 8) * 8), dtype=np.uint8)
+    words[:, :packed.shape[1]] = packed
+    words = words.view(">u8")
+    order = np.lexsort(words.T[::-1])                # stable: first occurrences lead their groups
+    ranked = words[order]
+    new = np.ones(len(bits), dtype=bool)
+    new[1:] = (ranked[1:] != ranked[:-1]).any(1)
+    group = np.empty(len(bits), dtype=np.int64)
+    group[order] = np.cumsum(new) - 1
+    return order[new], group
 
 
 def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarchy:

@@ -14,17 +14,20 @@ with ``pi`` the limit mask (left eigenvector of ``A`` for eigenvalue 1) and
 ``B = A - 1 pi^T``, whose powers decay, so derivatives keep full relative
 precision at any depth. No eigenvectors are needed: valence 3 (defective
 ``A``), creases, corners and boundaries are all handled the same way. ``A`` and
-``E_k`` are read off the global subdivision matrix of the next level at one
-representative face per local configuration.
+``E_k`` are read off the subdivision matrix of the next level at one
+representative face per local configuration; only the faces around the
+representatives are subdivided for that (:func:`build_locals`).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from mi_loop.mesh.halfedge import Topology
 from mi_loop.subdiv.boxspline import box_basis
 from mi_loop.subdiv.patches import irregular_points, phantom_matrices, stam_points
+from mi_loop.subdiv.subdivision import subdivide_topology
 
-__all__ = ["MAX_DEPTH", "LocalMatrices", "build_local"]
+__all__ = ["MAX_DEPTH", "LocalMatrices", "build_local", "build_locals"]
 
 #: Depth below which a point is taken as the vertex itself (2^-60 ~ 1e-18).
 MAX_DEPTH = 60
@@ -40,6 +43,8 @@ class LocalMatrices:
     E : (3, 12, K) float64 numpy array
         The 12 box-spline points of the three regular children (corner
         ``r_i``, corner ``r_j``, middle), phantom points included.
+    tangents : bool
+        Compute ``T`` now (else the caller sets it, see :func:`build_locals`).
 
     Attributes
     ----------
@@ -47,12 +52,17 @@ class LocalMatrices:
         Limit mask of the irregular vertex over the ``K`` patch points.
     G : (3, MAX_DEPTH + 1, 12, K) float64
         ``E_k B^m`` for the children ``k`` = corner ``r_i``, corner ``r_j``, middle.
+    B : (K, K) float64
+        ``A - 1 pi^T``.
+    r_st : (2, K) float64
+        ``d/ds`` and ``d/dt`` at the vertex, before any step (seeds of ``T``).
     T : (2, K) float64
         Orthonormal rows spanning the limit tangent plane at the vertex, in
-        the orientation of ``s x t`` (see :func:`_tangent_pair`).
+        the orientation of ``s x t`` (see :func:`_tangent_pairs`); set by
+        :func:`build_locals` when ``tangents`` is False.
     """
 
-    def __init__(self, A: np.ndarray, E: np.ndarray):
+    def __init__(self, A: np.ndarray, E: np.ndarray, tangents: bool = True):
         K = len(A)
         w, Vl = np.linalg.eig(A.T)
         i1 = np.argmin(np.abs(w - 1.0))
@@ -66,15 +76,20 @@ class LocalMatrices:
         G = np.empty((3, MAX_DEPTH + 1, 12, K))
         Bm = np.eye(K) - np.outer(np.ones(K), pi)
         for m in range(MAX_DEPTH + 1):
-            for k in range(3):
-                G[k, m] = E[k] @ Bm
+            np.matmul(E, Bm, out=G[:, m])
             Bm = Bm @ B
         self.G = G
-        self.T = _tangent_pair(box_basis(np.zeros((1, 2)), "u")[0] @ E[0],
-                               box_basis(np.zeros((1, 2)), "v")[0] @ E[1], B)
+        self.B = B
+        self.r_st = np.stack([_R_S @ E[0], _R_T @ E[1]])
+        if tangents:
+            self.T = _tangent_pairs([self.r_st], [B])[0]
 
 
-def _tangent_pair(r_s: np.ndarray, r_t: np.ndarray, B: np.ndarray, steps: int = 240) -> np.ndarray:
+#: d/ds and d/dt of the box-spline basis at the corner (0, 0) of a child patch.
+_R_S, _R_T = box_basis(np.zeros((1, 2)), "u")[0], box_basis(np.zeros((1, 2)), "v")[0]
+
+
+def _tangent_pairs(R: list, Bs: list, steps: int = 240) -> list:
     """Rows spanning the limit tangent plane at the vertex, with the orientation of ``s x t``.
 
     The derivative rows at depth ``m`` are ``r B^m``; their cross product is
@@ -84,17 +99,83 @@ def _tangent_pair(r_s: np.ndarray, r_t: np.ndarray, B: np.ndarray, steps: int = 
     orientation-preserving Gram-Schmidt step (positive triangular factor)
     converges to that plane at rate ``|lambda_3 / lambda_2|`` and keeps the sign
     of the normal ``cross(T_s V, T_t V)``.
+
+    ``R[i]`` (2, K_i) holds the rows ``(r_s, r_t)`` of configuration ``i`` and
+    ``Bs[i]`` its ``B``; all configurations iterate together (zero-padded to
+    the largest ``K``, which changes no value). Returns the ``(2, K_i)`` pairs.
     """
-    Y = np.stack([r_s, r_t]).astype(np.float64)
+    K = max(len(B) for B in Bs)
+    Y = np.zeros((len(Bs), 2, K))
+    Bp = np.zeros((len(Bs), K, K))
+    for i, (r, B) in enumerate(zip(R, Bs)):
+        Y[i, :, :len(B)] = r
+        Bp[i, :len(B), :len(B)] = B
     for _ in range(steps):
-        Y = Y @ B
-        Y[0] /= np.linalg.norm(Y[0])
-        Y[1] -= (Y[1] @ Y[0]) * Y[0]
-        Y[1] /= np.linalg.norm(Y[1])
-    return Y
+        Y = Y @ Bp
+        Y[:, 0] /= np.sqrt(np.einsum("ij,ij->i", Y[:, 0], Y[:, 0]))[:, None]
+        Y[:, 1] -= np.einsum("ij,ij->i", Y[:, 1], Y[:, 0])[:, None] * Y[:, 0]
+        Y[:, 1] /= np.sqrt(np.einsum("ij,ij->i", Y[:, 1], Y[:, 1]))[:, None]
+    return [Y[i, :, :len(B)].copy() for i, B in enumerate(Bs)]
 
 
-def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
+def build_locals(topo, faces, rots, max_valence: int) -> list:
+    """Build the :class:`LocalMatrices` of faces ``faces[i]``, rotated so that ``v = F[faces[i], rots[i]]``.
+
+    The next level is subdivided only around these faces: every row that
+    :func:`build_local` reads depends on the faces incident to the vertices
+    next to ``(v, r_i, r_j)``, and those are all kept (see :func:`_neighbourhood`).
+
+    Parameters
+    ----------
+    topo : Topology
+        Connectivity of the level that holds the faces.
+    faces, rots : (c,) int numpy arrays
+        Faces with exactly one irregular corner, and which corner (0, 1, 2).
+    max_valence : int
+        Largest valence in ``topo``.
+
+    Returns
+    -------
+    list of LocalMatrices
+        One per face, in order.
+    """
+    if len(faces) == 0:
+        return []
+    sub, sub_faces = _neighbourhood(topo, np.asarray(faces, dtype=np.int64))
+    S_next, fine = subdivide_topology(sub)
+    locs = [build_local(sub, fine, S_next, int(g), int(r), max_valence, tangents=False)
+            for g, r in zip(sub_faces, rots)]
+    for loc, T in zip(locs, _tangent_pairs([loc.r_st for loc in locs], [loc.B for loc in locs])):
+        loc.T = T
+    return locs
+
+
+def _neighbourhood(topo: Topology, faces: np.ndarray):
+    """The faces incident to vertices within one edge of ``faces``, as a mesh of their own.
+
+    Vertex rules need every face at the vertex and edge rules both faces at
+    the edge, so the subdivision rows of the vertices of ``faces``, of their
+    edge points and of the edge points of the faces around them are those of
+    ``topo``, and so are the sharp edges that the ring walks stop at.
+    Returns the sub-mesh :class:`Topology` (creases kept) and the ids of
+    ``faces`` in it.
+    """
+    F, n = topo.F, topo.n
+    near = np.zeros(n, dtype=bool)
+    near[F[faces].ravel()] = True
+    near[F[near[F].any(1)].ravel()] = True
+    keep = np.flatnonzero(near[F].any(1))
+    vid = np.full(n, -1, dtype=np.int64)
+    used = np.unique(F[keep].ravel())
+    vid[used] = np.arange(len(used))
+    edges = np.unique(topo.face_edge[keep].ravel())
+    edges = edges[(topo.sharpness[edges] > 0) & ~topo.boundary[edges]]
+    creases = (vid[topo.E[edges]], topo.sharpness[edges]) if len(edges) else None
+    sub = Topology.build(vid[F[keep]], len(used), creases)
+    return sub, np.searchsorted(keep, faces)
+
+
+def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int, tangents: bool = True):
     """Build the :class:`LocalMatrices` of face ``g``, rotated so that ``v = F[g, rot]``.
 
     Parameters
@@ -111,6 +192,9 @@ def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
         Which corner of ``g`` (0, 1 or 2) is irregular.
     max_valence : int
         Largest valence in ``topo``.
+    tangents : bool
+        Also compute :attr:`LocalMatrices.T` (:func:`build_locals` computes
+        them for all configurations at once).
 
     Returns
     -------
@@ -124,38 +208,44 @@ def build_local(topo, fine_topo, S_next, g: int, rot: int, max_valence: int):
         accepts).
     """
     n = topo.n
-    f = topo.F[g]
-    v, ri, rj = f[rot], f[(rot + 1) % 3], f[(rot + 2) % 3]
-    P = irregular_points(topo, np.array([v]), np.array([ri]), np.array([rj]), max_valence)[0]
+    P = irregular_points(topo, np.array([3 * g + rot]), max_valence)[0][0]
     present = P[P >= 0]
     # Children of the rotated face in the fine mesh (ids of the new vertices).
-    m_vi = n + topo.edge_id(np.array([v]), np.array([ri]))[0]
-    m_ij = n + topo.edge_id(np.array([ri]), np.array([rj]))[0]
-    m_jv = n + topo.edge_id(np.array([rj]), np.array([v]))[0]
-    Pc = irregular_points(fine_topo, np.array([v]), np.array([m_vi]), np.array([m_jv]),
-                          max_valence)[0]
+    v, ri, rj = (topo.F[g, (rot + c) % 3] for c in range(3))
+    m_vi, m_ij, m_jv = (n + topo.face_edge[g, (rot + c) % 3] for c in range(3))
+    Pc = irregular_points(fine_topo, np.array([_child_half_edge(fine_topo, g, v, m_vi)]), max_valence)[0][0]
     if not np.array_equal(Pc >= 0, P >= 0):
         raise RuntimeError(f"build_local(): internal error: the corner child of face {g} is not self-similar")
-    col = {int(p): i for i, p in enumerate(present)}
+    col = np.full(topo.n, -1, dtype=np.int64)
+    col[present] = np.arange(len(present))
     A = _rows(S_next, Pc[Pc >= 0], col)
-    kids = [(m_vi, ri, m_ij), (m_jv, m_ij, rj), (m_ij, m_jv, m_vi)]  # corner ri, corner rj, middle
+    kids = [(m_vi, ri), (m_jv, m_ij), (m_ij, m_jv)]  # first edge of the children at ri, at rj, middle
     E = []
-    for a, b, c in kids:
-        Q = stam_points(fine_topo, np.array([a]), np.array([b]), np.array([c]))
+    for a, b in kids:
+        Q = stam_points(fine_topo, np.array([_child_half_edge(fine_topo, g, a, b)]))
         pid, Phis = phantom_matrices(Q)
         T = np.zeros((12, len(present)))
         ok = Q[0] >= 0
         T[ok] = _rows(S_next, Q[0][ok], col)
         E.append(Phis[pid[0]] @ T)
-    return LocalMatrices(A, np.stack(E))
+    return LocalMatrices(A, np.stack(E), tangents)
+
+
+def _child_half_edge(fine_topo, g: int, a: int, b: int) -> int:
+    """Half-edge ``a -> b`` of a child of face ``g`` (children are fine faces ``4 g .. 4 g + 3``)."""
+    F = fine_topo.F[4 * g:4 * g + 4]
+    f, c = np.nonzero((F == a) & (np.roll(F, -1, axis=1) == b))
+    return 3 * (4 * g + int(f[0])) + int(c[0])
 
 
 def _rows(S, idx, col):
-    """Dense rows ``S[idx]`` over the columns listed in ``col`` (all others must be zero)."""
-    sub = S[idx].tocoo()
-    out = np.zeros((len(idx), len(col)))
-    for r, c, x in zip(sub.row, sub.col, sub.data):
-        if int(c) not in col:
-            raise RuntimeError("build_local(): internal error: a subdivision row leaves the patch")
-        out[r, col[int(c)]] += x
+    """Dense rows ``S[idx]`` over the columns ``col`` (``(n,)`` int, -1 outside the patch; all others must be zero)."""
+    starts, stops = S.indptr[idx], S.indptr[np.asarray(idx) + 1]
+    counts = stops - starts
+    entry = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts - starts, counts)
+    c = col[S.indices[entry]]
+    if (c < 0).any():
+        raise RuntimeError("build_local(): internal error: a subdivision row leaves the patch")
+    out = np.zeros((len(idx), int(col.max()) + 1))
+    out[np.repeat(np.arange(len(idx)), counts), c] = S.data[entry]
     return out

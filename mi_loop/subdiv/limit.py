@@ -14,98 +14,149 @@ import scipy.sparse as sp
 
 from mi_loop.errors import fail
 from mi_loop.mesh.topology import validate_faces
-from mi_loop.subdiv.boxspline import box_basis
+from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_rows
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
 from mi_loop.subdiv.irregular import MAX_DEPTH
 
 __all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr"]
 
 
-def _descend(uv: np.ndarray):
-    """Child index and child parameters of points ``uv`` (k, 2) in a parent face."""
-    u, v = uv[:, 0], uv[:, 1]
-    child = np.where(u >= 0.5, 1, np.where(v >= 0.5, 2, np.where(u + v <= 0.5, 0, 3)))
-    uc = np.select([child == 0, child == 1, child == 2], [2 * u, 2 * u - 1, 2 * u], 1 - 2 * u)
-    vc = np.select([child == 0, child == 1, child == 2], [2 * v, 2 * v, 2 * v - 1], 1 - 2 * v)
-    return child, np.clip(np.stack([uc, vc], 1), 0.0, 1.0)
-
-
 def _map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
-    """Face and parameters at level L of control-face points, and the derivative factor."""
+    """Face and parameters ``(u, v)`` at level L of control-face points, and the derivative factor.
+
+    Child 0, 1, 2 of a face holds its corner 0, 1, 2 and child 3 is the middle
+    face, turned by half a turn (its parameters and derivatives change sign).
+    """
     f = face_ids.astype(np.int64)
+    u, v = np.array(uv[:, 0]), np.array(uv[:, 1])
     sign = np.ones(len(f))
     for _ in range(len(h.S)):
-        child, uv = _descend(uv)
-        f = 4 * f + child
-        sign = np.where(child == 3, -sign, sign)
-    return f, uv, sign * 2.0 ** len(h.S)
+        c1 = u >= 0.5
+        c2 = v >= 0.5
+        c2 &= ~c1
+        mid = u + v > 0.5
+        mid &= ~(c1 | c2)
+        f *= 4
+        f += c1
+        f += 2 * c2
+        f += 3 * mid
+        u *= 2
+        u -= c1
+        v *= 2
+        v -= c2
+        np.subtract(1.0, u, out=u, where=mid)
+        np.subtract(1.0, v, out=v, where=mid)
+        np.negative(sign, out=sign, where=mid)
+        np.clip(u, 0.0, 1.0, out=u)
+        np.clip(v, 0.0, 1.0, out=v)
+    return f, u, v, sign * 2.0 ** len(h.S)
 
 
-def _regular_rows(h, faces, uv, derivative):
-    b = box_basis(uv, derivative)
-    pid = h.reg_pid[faces]
-    for p in np.unique(pid):
-        if not np.array_equal(h.Phis[p], np.eye(12)):
-            sel = pid == p
-            b[sel] = b[sel] @ h.Phis[p]
-    return h.reg_P[faces], b
+def _corner_child(s, t):
+    """Depth ``m``, child (0 at ``r_i``, 1 at ``r_j``, 2 middle) and its parameters, near the irregular vertex.
 
-
-def _local_rows(loc, s, t, derivative):
-    """Weights over the K patch points (s along v->r_i, t along v->r_j)."""
+    ``m`` is the depth with ``2^-(m+1) < s + t <= 2^-m``, read off the binary
+    exponent; ``at_vertex`` marks ``s + t <= 2^-MAX_DEPTH``. Returns
+    ``at_vertex, m, child, cu, cv, factor`` with ``factor`` the derivative
+    factor of the child's parameters.
+    """
     st = s + t
     at_vertex = st <= 2.0 ** -MAX_DEPTH
-    m = np.floor(-np.log2(np.maximum(st, 2.0 ** -MAX_DEPTH)))
-    m = np.where(st * 2.0 ** m > 1.0, m - 1, np.where(st * 2.0 ** m <= 0.5, m + 1, m))
-    m = np.clip(m, 0, MAX_DEPTH).astype(np.int64)
-    scale = 2.0 ** m
-    ss, tt = s * scale, t * scale
-    child = np.where(ss >= 0.5, 0, np.where(tt >= 0.5, 1, 2))
-    cu = np.select([child == 0, child == 1], [2 * ss - 1, 2 * ss], 1 - 2 * ss)
-    cv = np.select([child == 0, child == 1], [2 * tt, 2 * tt - 1], 1 - 2 * tt)
-    cuv = np.clip(np.stack([cu, cv], 1), 0.0, 1.0)
-    K = len(loc.pi)
-    if derivative is None:
-        out = np.broadcast_to(loc.pi, (len(s), K)).copy()
-        b = box_basis(cuv)
-        factor = np.ones(len(s))
-    else:
-        out = np.zeros((len(s), K))
-        b = box_basis(cuv, {"s": "u", "t": "v"}[derivative])
-        factor = np.where(child == 2, -2.0, 2.0) * scale
-    key = np.where(at_vertex, -1, child * (MAX_DEPTH + 1) + m)
-    for k in np.unique(key[key >= 0]):
-        sel = key == k
-        out[sel] += factor[sel, None] * (b[sel] @ loc.G[k // (MAX_DEPTH + 1), k % (MAX_DEPTH + 1)])
-    if derivative is not None:
-        out[at_vertex] = loc.T[0 if derivative == "s" else 1]
-    return out
+    mant, e = np.frexp(np.maximum(st, 2.0 ** -MAX_DEPTH))
+    m = np.clip((mant == 0.5) - e, 0, MAX_DEPTH)
+    cu, cv = np.ldexp(s, m + 1), np.ldexp(t, m + 1)     # 2 s 2^m, 2 t 2^m: exact
+    c0 = cu >= 1.0
+    c1 = cv >= 1.0
+    c1 &= ~c0
+    c2 = ~(c0 | c1)
+    cu -= c0
+    cv -= c1
+    np.subtract(1.0, cu, out=cu, where=c2)
+    np.subtract(1.0, cv, out=cv, where=c2)
+    child = c1 + 2 * c2
+    factor = np.ldexp(np.where(c2, -2.0, 2.0), m)
+    return at_vertex, m, child, np.clip(cu, 0.0, 1.0, out=cu), np.clip(cv, 0.0, 1.0, out=cv), factor
 
 
-def _irregular_rows(h, faces, uv, derivative):
-    """Rows for points in faces with an irregular corner; ``(idx, W)`` padded."""
-    rot = h.irr_corner[faces]
-    r = np.arange(len(faces))
-    bary = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)
-    s, t = bary[r, (rot + 1) % 3], bary[r, (rot + 2) % 3]
-    sig = h.irr_sig[faces]
-    idx = h.irr_P[faces]
-    W = np.zeros(idx.shape)
-    if derivative is not None:
-        # d/du, d/dv from d/ds, d/dt with (s, t) = barycentrics (rot+1, rot+2).
-        dbary = np.zeros((len(faces), 3))
-        dbary[:, 0], dbary[:, 1 if derivative == "u" else 2] = -1.0, 1.0
-        ds, dt = dbary[r, (rot + 1) % 3][:, None], dbary[r, (rot + 2) % 3][:, None]
-    for q in np.unique(sig):
-        sel = sig == q
-        loc = h.locals[q]
-        K = len(loc.pi)
-        if derivative is None:
-            W[sel, :K] = _local_rows(loc, s[sel], t[sel], None)
-        else:
-            W[sel, :K] = (ds[sel] * _local_rows(loc, s[sel], t[sel], "s")
-                          + dt[sel] * _local_rows(loc, s[sel], t[sel], "t"))
-    return idx, W
+#: d/du and d/dv in terms of d/ds and d/dt, by the irregular corner: (s, t) are
+#: the barycentrics (rot + 1, rot + 2) of (1 - u - v, u, v).
+_DS = {"u": (1.0, 0.0, -1.0), "v": (0.0, 1.0, -1.0)}
+_DT = {"u": (0.0, -1.0, 1.0), "v": (1.0, -1.0, 0.0)}
+_N_LOCAL = 3 * (MAX_DEPTH + 1) + 1      # (child, depth) pairs and the vertex itself
+
+
+class _IrregularSamples:
+    """Samples in faces with an irregular corner, sorted by (configuration, corner, child, depth).
+
+    ``rows`` are their sample indices in that order and ``groups`` the runs
+    ``(signature, rot, child or -1 at the vertex, depth, factor, start, stop)``
+    that share one matrix and one derivative factor; ``cu, cv`` are the
+    parameters in the regular child patch and ``scale`` the sample's own
+    derivative factor (from :func:`_map_to_level`).
+    """
+
+    def __init__(self, h: Hierarchy, rows, faces, u, v, scale):
+        rot = h.irr_corner[faces]
+        w = 1 - u - v
+        r1, r2 = rot == 1, rot == 2                 # (s, t) = (u, v), (v, w), (w, u)
+        s = np.where(r1, v, np.where(r2, w, u))
+        t = np.where(r1, w, np.where(r2, u, v))
+        at_vertex, m, child, cu, cv, factor = _corner_child(s, t)
+        key = (h.irr_sig[faces] * 3 + rot) * _N_LOCAL + np.where(at_vertex, _N_LOCAL - 1,
+                                                                   child * (MAX_DEPTH + 1) + m)
+        used = np.zeros(len(h.locals) * 3 * _N_LOCAL, dtype=bool)
+        used[key] = True
+        rank = (np.cumsum(used) - 1).astype(np.int16 if used.sum() < 2 ** 15 else np.int64)[key]
+        order = np.argsort(rank, kind="stable")
+        self.rows, self.cu, self.cv, self.scale = rows[order], cu[order], cv[order], scale[order]
+        factor = factor[order]
+        counts = np.bincount(rank)
+        stops = np.cumsum(counts)
+        self.groups = []
+        for k, start, stop in zip(np.flatnonzero(used), stops - counts, stops):
+            qr, local = divmod(int(k), _N_LOCAL)
+            c, d = divmod(local, MAX_DEPTH + 1) if local < _N_LOCAL - 1 else (-1, 0)
+            self.groups.append((qr // 3, qr % 3, c, d, float(factor[start]), int(start), int(stop)))
+
+    def apply(self, h: Hierarchy, W: dict):
+        """Overwrite the rows of these samples in the padded weights ``W`` (box-spline rows at ``(cu, cv)``)."""
+        names = list(W)
+        width = W[names[0]].shape[1]
+        derivs = [d for d in names if d is not None]
+        need = ([None] if None in W else []) + (["u", "v"] if derivs else [])
+        buf = np.empty((PRODUCT_ROWS, width))
+        for q, rot, c, depth, f, a, e in self.groups:
+            loc = h.locals[q]
+            K = len(loc.pi)
+            if c < 0:                      # at the vertex: the limit mask and the tangent-plane rows
+                rows = self.rows[a:e]
+                for d in names:
+                    W[d][rows, K:] = 0.0
+                    W[d][rows, :K] = loc.pi if d is None else \
+                        self.scale[a:e, None] * (_DS[d][rot] * loc.T[0] + _DT[d][rot] * loc.T[1])
+                continue
+            G = loc.G[c, depth]
+            for a0 in range(a, e, PRODUCT_ROWS):
+                e0 = min(e, a0 + PRODUCT_ROWS)
+                rows = self.rows[a0:e0]
+                B = {d: np.take(W[d], rows, axis=0)[:, :12] if d in W else
+                     box_rows(self.cu[a0:e0], self.cv[a0:e0], (d,), 12, self.scale[a0:e0])[d] for d in need}
+                out = buf[:e0 - a0]
+                out[:, K:] = 0.0
+                if None in W:
+                    np.add(B[None] @ G, loc.pi, out=out[:, :K])
+                    W[None][rows] = out
+                if derivs:
+                    X, Y = B["u"] @ G, B["v"] @ G     # d/ds and d/dt, up to the factor
+                    for d in derivs:
+                        ds, dt = f * _DS[d][rot], f * _DT[d][rot]
+                        if dt == 0:
+                            np.multiply(X, ds, out=out[:, :K])
+                        elif ds == 0:
+                            np.multiply(Y, dt, out=out[:, :K])
+                        else:
+                            np.add(ds * X, dt * Y, out=out[:, :K])
+                        W[d][rows] = out
 
 
 def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
@@ -129,6 +180,13 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
         over level ``L`` is ``sum_j W[i, j] e_{idx[i, j]}``. The index array
         does not depend on the derivative and is the same object in every pair.
 
+    Notes
+    -----
+    Every sample's box-spline rows are evaluated once, at the parameters of
+    its regular patch (the level-``L`` face, or the regular child next to an
+    irregular vertex), blocked so that temporaries stay in cache; phantom
+    patterns and irregular configurations are then applied group by group.
+
     Examples
     --------
     >>> F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
@@ -137,33 +195,26 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
     >>> idx.shape == W.shape, round(float(W.sum()), 12)
     (True, 1.0)
     """
-    faces, uvL, sign = _map_to_level(h, face_ids, uv)
-    reg = h.irr_corner[faces] < 0
-    ri, ii = np.flatnonzero(reg), np.flatnonzero(~reg)
-    if len(ii) == 0:
-        idx = h.reg_P[faces].astype(np.int32)
-        return [(idx, np.ascontiguousarray(_regular_rows(h, faces, uvL, d)[1])
-                 * (sign[:, None] if d is not None else 1.0)) for d in derivatives]
-    K = max(len(h.locals[q].pi) for q in np.unique(h.irr_sig[faces[ii]]))
-    width = max(12, K)
-    # Regular block then irregular block, padded to one width; one row gather
-    # (the inverse permutation) puts them back in sample order.
-    inverse = np.empty(len(faces), dtype=np.int64)
-    inverse[np.concatenate([ri, ii])] = np.arange(len(faces))
-    idx = np.zeros((len(faces), width), dtype=np.int32)
-    idx[:len(ri), :12] = h.reg_P[faces[ri]]
-    idx[len(ri):, :K] = h.irr_P[faces[ii]][:, :K]
-    idx = idx[inverse]
-    out = []
-    for d in derivatives:
-        W = np.zeros((len(faces), width))
-        W[:len(ri), :12] = _regular_rows(h, faces[ri], uvL[ri], d)[1]
-        W[len(ri):, :K] = _irregular_rows(h, faces[ii], uvL[ii], d)[1][:, :K]
-        W = W[inverse]
-        if d is not None:
-            W *= sign[:, None]
-        out.append((idx, W))
-    return out
+    faces, u, v, scale = _map_to_level(h, face_ids, uv)
+    ii = np.flatnonzero(h.irr_corner[faces] >= 0)
+    width = max(12, int(h.irr_K[faces[ii]].max())) if len(ii) else 12
+    idx = np.take(np.ascontiguousarray(h.face_P[:, :width]), faces, axis=0)
+    irr = _IrregularSamples(h, ii, faces[ii], u[ii], v[ii], scale[ii]) if len(ii) else None
+    if irr is not None:
+        u[irr.rows], v[irr.rows] = irr.cu, irr.cv
+    W = box_rows(u, v, derivatives, width, scale)
+    pr = np.flatnonzero(h.phantom[faces]) if h.phantom.any() else ()
+    if len(pr):
+        pid = h.reg_pid[faces[pr]]
+        for p in np.unique(pid):
+            rows_p = pr[pid == p]
+            for a in range(0, len(rows_p), PRODUCT_ROWS):
+                rows = rows_p[a:a + PRODUCT_ROWS]
+                for Wd in W.values():
+                    Wd[rows, :12] = np.take(Wd, rows, axis=0)[:, :12] @ h.Phis[p]
+    if irr is not None:
+        irr.apply(h, W)
+    return [(idx, W[d]) for d in derivatives]
 
 
 def check_samples(face_ids, uv, m, func):
@@ -211,12 +262,17 @@ def check_samples(face_ids, uv, m, func):
     if len(bad):
         fail(func, f"face ids in [0, {m})", f"face id {face_ids[bad[0]]} at sample {bad[0]}")
     tol = 1e-12
-    bad = np.flatnonzero(~np.isfinite(uv).all(1) | (uv < -tol).any(1) | (uv.sum(1) > 1 + tol))
-    if len(bad):
+    u, v = uv[:, 0], uv[:, 1]
+    ok = u >= -tol                      # also False for NaN and -inf; u + v catches +inf
+    ok &= v >= -tol
+    ok &= u + v <= 1 + tol
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
         fail(func, "uv with u >= 0, v >= 0, u + v <= 1", f"uv = {uv[bad[0]].tolist()} at sample {bad[0]}")
     uv = np.clip(uv, 0.0, 1.0)
-    over = uv.sum(1) > 1.0
-    uv[over] /= uv[over].sum(1, keepdims=True)
+    over = np.flatnonzero(uv[:, 0] + uv[:, 1] > 1.0)
+    if len(over):
+        uv[over] /= uv[over].sum(1, keepdims=True)
     return face_ids.astype(np.int64), uv
 
 

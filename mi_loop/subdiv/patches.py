@@ -16,45 +16,57 @@ from mi_loop.subdiv.boxspline import LATTICE
 __all__ = ["corner_regular", "irregular_points", "phantom_matrices", "stam_points"]
 
 
-def _ring6(topo: Topology, centre: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Walk the one-ring of ``centre`` counter-clockwise from ``start``.
+def _corners(h: np.ndarray):
+    """Next and previous half-edges of the faces of half-edges ``h`` (``3 f + c``)."""
+    c = h % 3
+    return h - c + (c + 1) % 3, h - c + (c + 2) % 3
 
-    The first step goes through the face ``(centre, start, x)``; later steps
-    cross edges and stop at sharp ones; the rest is filled clockwise from
-    ``start``. Returns ``(k, 6)`` int64, -1 where the sector ends.
+
+def _ring6(topo: Topology, h0: np.ndarray) -> np.ndarray:
+    """Walk the one-ring of the tails of half-edges ``h0`` counter-clockwise from their heads.
+
+    The first step goes through the face of ``h0``; later steps cross edges
+    and stop at sharp ones; the rest is filled clockwise from the head.
+    Returns ``(k, 6)`` int64, -1 where the sector ends.
     """
-    k = len(centre)
-    R = np.full((k, 6), -1, dtype=np.int64)
+    T = topo.walk_tables()
+    R = np.full((len(h0), 6), -1, dtype=np.int64)
+    start = T.head[h0]
     R[:, 0] = start
-    R[:, 1] = topo.next_ccw(centre, start)
+    R[:, 1] = T.prev_vertex[h0]
+    g = np.where(T.prev_sharp[h0], -1, T.ccw[h0])   # tail -> R[:, j - 1], -1 once the walk has stopped
     for j in range(2, 6):
-        prev = R[:, j - 1]
-        ok = (prev >= 0) & ~topo.edge_sharp(centre, np.maximum(prev, 0))
-        nxt = np.where(ok, topo.next_ccw(centre, np.maximum(prev, 0)), -1)
-        R[:, j] = np.where(nxt == start, -1, nxt)
-    cur = start.copy()
-    active = ~topo.edge_sharp(centre, start)
+        nxt = T.prev_vertex[g]
+        nxt[nxt == start] = -1
+        R[:, j] = nxt
+        g = np.where(T.prev_sharp[g] | (nxt < 0), -1, T.ccw[g])
+        if (g < 0).all():
+            break
+    g = h0.copy()                                    # tail -> last point filled clockwise
+    active = ~T.sharp[h0]
     for j in range(5, 1, -1):
         active &= R[:, j] < 0
-        nxt = np.where(active, topo.next_cw(centre, cur), -1)
-        active &= nxt >= 0
-        seen = (R == nxt[:, None]).any(1)
-        active &= ~seen
+        if not active.any():
+            break
+        g_next = np.where(active, T.cw[g], -1)
+        nxt = T.head[g_next]
+        active &= (nxt >= 0) & ~(R == nxt[:, None]).any(1)
         R[:, j] = np.where(active, nxt, R[:, j])
-        cur = np.where(active, nxt, cur)
-        active &= ~topo.edge_sharp(centre, np.maximum(cur, 0))
+        g = np.where(active, g_next, g)
+        active &= ~T.sharp[g]
     return R
 
 
-def stam_points(topo: Topology, a, b, c) -> np.ndarray:
-    """Return the 12 regular-patch points of faces ``(a, b, c)`` in Stam's order.
+def stam_points(topo: Topology, h) -> np.ndarray:
+    """Return the 12 regular-patch points of the faces of half-edges ``h`` in Stam's order.
 
     Parameters
     ----------
     topo : Topology
         Mesh connectivity.
-    a, b, c : (k,) int numpy arrays
-        Corners of each face, in the face's orientation.
+    h : (k,) int numpy array
+        Half-edge ``a -> b`` (flat corner index ``3 f + c``) of each face
+        ``(a, b, c)``, in the face's orientation.
 
     Returns
     -------
@@ -67,13 +79,14 @@ def stam_points(topo: Topology, a, b, c) -> np.ndarray:
     --------
     >>> from mi_loop.mesh.halfedge import Topology
     >>> topo = Topology.build(np.array([[0, 1, 2]]), 3)
-    >>> stam_points(topo, np.array([0]), np.array([1]), np.array([2])).tolist()
+    >>> stam_points(topo, np.array([0])).tolist()
     [[-1, -1, -1, 0, -1, -1, 1, 2, -1, -1, -1, -1]]
     """
-    ra, rb, rc = _ring6(topo, a, b), _ring6(topo, b, c), _ring6(topo, c, a)
-    P = np.stack([ra[:, 4], ra[:, 3], ra[:, 5], a, ra[:, 2], rb[:, 3],
-                  b, c, rc[:, 4], rb[:, 4], rb[:, 5], rc[:, 3]], axis=1)
-    return P
+    h = np.asarray(h, dtype=np.int64)
+    h_bc, h_ca = _corners(h)
+    ra, rb, rc = _ring6(topo, h), _ring6(topo, h_bc), _ring6(topo, h_ca)
+    return np.stack([ra[:, 4], ra[:, 3], ra[:, 5], rc[:, 0], ra[:, 2], rb[:, 3],
+                     ra[:, 0], rb[:, 0], rc[:, 4], rb[:, 4], rb[:, 5], rc[:, 3]], axis=1)
 
 
 _LATTICE_KEY = {tuple(p): i for i, p in enumerate(LATTICE)}
@@ -153,9 +166,8 @@ def phantom_matrices(P: np.ndarray):
     return pattern_id, np.stack(Phis)
 
 
-def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray,
-                   corner: np.ndarray, nxt: np.ndarray) -> np.ndarray:
-    """Whether ``corner`` is regular for the face whose next corner is ``nxt``.
+def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Whether the tail of half-edge ``h`` is a regular corner of the face of ``h``.
 
     Regular: smooth with valence 6 and no sharp edge, or a crease vertex
     (exactly two sharp edges) whose sector containing the face has 3 faces.
@@ -168,73 +180,90 @@ def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray,
         :meth:`Topology.vertex_kind` of every vertex.
     valence : (n,) int numpy array
         :meth:`Topology.valence` of every vertex.
-    corner, nxt : (k,) int numpy arrays
-        A face corner and the next corner of the same face.
+    h : (k,) int numpy array
+        Half-edges (flat corner indices ``3 f + c``): corner ``F[f, c]`` of face ``f``.
 
     Returns
     -------
     (k,) bool numpy array
     """
-    sc = topo.sharp_count()[corner]
-    smooth_reg = (sc == 0) & (valence[corner] == 6)
-    R = _ring6(topo, corner, nxt)
-    sector_pts = (R >= 0).sum(1)
+    h = np.asarray(h, dtype=np.int64)
+    corner = topo.F.ravel()[h]
+    regular = (topo.sharp_count()[corner] == 0) & (valence[corner] == 6)
     # A crease sector of 3 faces has 4 points and both ends on sharp edges.
-    crease_reg = (kind[corner] == 1) & (sector_pts == 4)
-    return smooth_reg | crease_reg
+    crease = np.flatnonzero(kind[corner] == 1)
+    if len(crease):
+        regular[crease] = (_ring6(topo, h[crease]) >= 0).sum(1) == 4
+    return regular
 
 
-def _vertex_sector(topo: Topology, v: np.ndarray, start: np.ndarray, max_valence: int):
-    """Neighbours of ``v`` reachable without crossing sharp edges, from ``start``.
+def _vertex_sector(topo: Topology, h0: np.ndarray, max_valence: int):
+    """Neighbours of the tails of ``h0`` reachable without crossing sharp edges, from the heads.
 
-    Counter-clockwise first (the first step through face ``(v, start, x)``),
-    then clockwise. Returns ``(k, 2 max_valence)`` int64 padded with -1 and the
-    number of counter-clockwise entries ``(k,)``.
+    Counter-clockwise first (the first step through the face of ``h0``), then
+    clockwise. Returns ``(k, 2 max_valence)`` int64 padded with -1, whether the
+    edge to each of them is sharp (bool, same shape) and the number of
+    counter-clockwise entries ``(k,)``.
     """
-    k = len(v)
+    T = topo.walk_tables()
+    k = len(h0)
     L = np.full((k, 2 * max_valence), -1, dtype=np.int64)
-    L[:, 0] = start
-    cur = start.copy()
-    active = np.ones(k, bool)
+    sharp = np.zeros(L.shape, dtype=bool)
+    start = T.head[h0]
+    L[:, 0], sharp[:, 0] = start, T.sharp[h0]
+    g = h0.copy()                                    # tail -> L[:, j - 1], -1 once the walk has stopped
     n_ccw = np.ones(k, dtype=np.int64)
     for j in range(1, max_valence):
-        nxt = np.where(active, topo.next_ccw(v, cur), -1)
-        active &= (nxt >= 0) & (nxt != start)
+        nxt = T.prev_vertex[g]
+        active = (nxt >= 0) & (nxt != start)
+        if not active.any():
+            break
         L[:, j] = np.where(active, nxt, -1)
         n_ccw += active
-        cur = np.where(active, nxt, cur)
-        active &= ~topo.edge_sharp(v, cur)
+        sharp[:, j] = active & T.prev_sharp[g]
+        g = np.where(active & ~T.prev_sharp[g], T.ccw[g], -1)
     last_ccw = L[np.arange(k), n_ccw - 1]
-    cur = start.copy()
-    active = ~topo.edge_sharp(v, start)
+    g = h0.copy()                                    # tail -> L[:, j - 1] (clockwise)
+    active = ~T.sharp[h0]
     for j in range(max_valence, 2 * max_valence):
-        nxt = np.where(active, topo.next_cw(v, cur), -1)
+        if not active.any():
+            break
+        g_next = np.where(active, T.cw[g], -1)
+        nxt = T.head[g_next]
         active &= (nxt >= 0) & (nxt != last_ccw) & (nxt != start)
         L[:, j] = np.where(active, nxt, -1)
-        cur = np.where(active, nxt, cur)
-        active &= ~topo.edge_sharp(v, cur)
-    return L, n_ccw
+        g = np.where(active, g_next, g)
+        sharp[:, j] = active & T.sharp[g]
+        active &= ~T.sharp[g]
+    return L, sharp, n_ccw
 
 
-def irregular_points(topo: Topology, v, ri, rj, max_valence: int) -> np.ndarray:
-    """Return the patch points of faces ``(v, ri, rj)`` whose corner ``v`` is irregular.
+def irregular_points(topo: Topology, h, max_valence: int):
+    """Return the patch points of the faces of half-edges ``h = v -> r_i`` whose corner ``v`` is irregular.
 
     Parameters
     ----------
     topo : Topology
         Mesh connectivity.
-    v, ri, rj : (k,) int numpy arrays
-        The irregular corner and the two others, in the face's orientation.
+    h : (k,) int numpy array
+        Half-edge from the irregular corner ``v`` to the next corner ``r_i``
+        of each face ``(v, r_i, r_j)`` (flat corner index ``3 f + c``).
     max_valence : int
         Largest valence in the mesh (pads the sector).
 
     Returns
     -------
-    (k, 1 + 2 max_valence + 5) int64 numpy array
-        ``[v, sector of v from ri (counter-clockwise, then clockwise, padded),
-        3 outer points of ri, 2 outer points of rj]``, -1 where absent.
+    P : (k, 1 + 2 max_valence + 5) int64 numpy array
+        ``[v, sector of v from r_i (counter-clockwise, then clockwise, padded),
+        3 outer points of r_i, 2 outer points of r_j]``, -1 where absent.
+    sharp : (k, 1 + 2 max_valence + 5) bool numpy array
+        Whether the edge from ``v`` to the sector point is sharp (False outside the sector).
     """
-    L, _ = _vertex_sector(topo, v, ri, max_valence)
-    Ri = _ring6(topo, ri, rj)
-    Rj = _ring6(topo, rj, v)
-    return np.concatenate([v[:, None], L, Ri[:, 3:6], Rj[:, 3:5]], axis=1)
+    h = np.asarray(h, dtype=np.int64)
+    h_ij, h_jv = _corners(h)
+    L, L_sharp, _ = _vertex_sector(topo, h, max_valence)
+    Ri, Rj = _ring6(topo, h_ij), _ring6(topo, h_jv)
+    P = np.concatenate([topo.F.ravel()[h][:, None], L, Ri[:, 3:6], Rj[:, 3:5]], axis=1)
+    sharp = np.zeros(P.shape, dtype=bool)
+    sharp[:, 1:1 + 2 * max_valence] = L_sharp
+    return P, sharp
