@@ -417,7 +417,8 @@ def _fit_frames(run: _Run, first, op, vertex_op, renderer, log) -> list:
                 image = _photo_term(run, t, frame, log)
             elif renderer is not None and target is not None:
                 Vt = run.norm.forward(target[0])
-                image = sequence.RenderedTerm(renderer, renderer.targets(Vt, target[1], vertex_normals(Vt, target[1])))
+                image = sequence.RenderedTerm(renderer, lambda Vt=Vt, Ft=target[1]:   # rendered if used
+                                              renderer.targets(Vt, Ft, vertex_normals(Vt, Ft)))
 
             def progress(i, n, k=k, t=t):
                 update(sum(steps[:k]) + i, sum(steps), f"frame {t + 1}/{len(run.reader)}")

@@ -110,13 +110,21 @@ class RenderedTerm:
     ----------
     renderer : Renderer
         The sequence's rig (fixed cameras, unit-box units).
-    targets : list of mi.TensorXf
-        The frame's target renders.
+    targets : list of mi.TensorXf, or a callable returning one
+        The frame's target renders; a callable is called on the first
+        gradient (a frame whose renders are skipped never renders them).
     """
 
     def __init__(self, renderer, targets):
-        self.renderer, self.targets = renderer, targets
+        self.renderer, self._targets = renderer, targets
         self.n_views = len(renderer.views)
+
+    @property
+    def targets(self) -> list:
+        """The target renders (rendered on first use when given as a callable)."""
+        if callable(self._targets):
+            self._targets = self._targets()
+        return self._targets
 
     def pixel_size(self) -> float:
         """Width of one pixel at the subject's centre, in the fit's units (the rig's: unit box)."""
@@ -280,14 +288,6 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         lr = float(np.clip(np.sqrt(float(imls.energy(Q0, reduce="mean")[0])) / 3.0, 1e-2 * lr, lr))
     opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
     use_image = options.image and image is not None
-    smooth = None
-    if use_image and options.image_smooth > 0:
-        from mi_loop.fitting.largesteps import SmoothParameterisation
-
-        smooth = SmoothParameterisation(F, n, options.image_smooth)
-    order = []
-    history = {"geo": [], "image": []}
-    t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
     noise, seen_weight, support_radius = None, options.seen, None
     if use_image and imls is not None and complete:   # a mesh frame: renders weigh by its roughness
         from mi_loop.mesh.points import noise_level
@@ -298,6 +298,14 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     elif use_image and imls is not None:              # full support within three data spacings
         P = imls.points[::max(1, len(imls.points) // 2000)]
         support_radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
+    smooth = None
+    if use_image and options.image_smooth > 0:
+        from mi_loop.fitting.largesteps import SmoothParameterisation
+
+        smooth = SmoothParameterisation(F, n, options.image_smooth)
+    order = []
+    history = {"geo": [], "image": []}
+    t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
     for it in range(n_it):
         x = ControlPoints(opt["x"])       # shared by ARAP and the limit operator
         Vn = x.numpy()

@@ -306,6 +306,15 @@ def padded_to_csr(idx, W, n_cols):
     return M
 
 
+def _all_corners(uv) -> bool:
+    """Whether ``uv`` is a non-empty (k, 2) array of face corners ``(0, 0)``, ``(1, 0)``, ``(0, 1)`` only."""
+    uv = np.asarray(uv)
+    if uv.ndim != 2 or uv.shape[1] != 2 or len(uv) == 0 or not np.issubdtype(uv.dtype, np.number):
+        return False
+    u, v = uv[:, 0], uv[:, 1]
+    return bool((((u == 0) | (u == 1)) & ((v == 0) | (v == 1)) & (u + v <= 1)).all())
+
+
 def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     """Return the sparse matrix of exact limit points (or derivatives) at ``(face, u, v)``.
 
@@ -358,15 +367,13 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     """
     if derivative not in (None, "u", "v"):
         fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
-    if derivative is None:             # all samples at control-vertex corners: the vertex masks, no hierarchy
+    if derivative is None and _all_corners(uv):   # the vertex masks, no hierarchy
+        from mi_loop.subdiv.masks import _position_masks
+
         F = validate_faces(F, n_vertices, "limit_matrix")
         face_ids, uv = check_samples(face_ids, uv, len(F), "limit_matrix")
-        corner = np.select([(uv[:, 0] == 0) & (uv[:, 1] == 0), (uv[:, 0] == 1) & (uv[:, 1] == 0),
-                            (uv[:, 0] == 0) & (uv[:, 1] == 1)], [0, 1, 2], -1)
-        if len(corner) and (corner >= 0).all():
-            from mi_loop.subdiv.masks import _position_masks
-
-            return _position_masks(F, n_vertices, creases, "limit_matrix")[F[face_ids, corner]]
+        corner = np.where(uv[:, 0] == 1, 1, np.where(uv[:, 1] == 1, 2, 0))
+        return _position_masks(F, n_vertices, creases, "limit_matrix")[F[face_ids, corner]]
     h = build_hierarchy(F, n_vertices, creases)
     face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))
