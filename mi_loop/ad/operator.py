@@ -82,6 +82,8 @@ class LimitOperator:
         As in :func:`mi_loop.subdivision_matrix`.
     derivatives : bool
         Also build the ``d/du`` and ``d/dv`` rows (needed for tangents and normals).
+    corners, boundary, crease_method : optional
+        The rest of the crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Examples
     --------
@@ -95,9 +97,12 @@ class LimitOperator:
     True
     """
 
-    def __init__(self, F, n_vertices, face_ids, uv, creases=None, derivatives: bool = True):
-        h = build_hierarchy(F, n_vertices, creases, "LimitOperator")
-        self.face_ids, self.uv = check_samples(face_ids, uv, len(h.levels[0].F), "LimitOperator")
+    def __init__(self, F, n_vertices, face_ids, uv, creases=None, derivatives: bool = True, *, corners=None,
+                 boundary="edge_and_corner", crease_method="uniform"):
+        h = build_hierarchy(F, n_vertices, creases, "LimitOperator", corners=corners, boundary=boundary,
+                            crease_method=crease_method)
+        self.face_ids, self.uv = check_samples(face_ids, uv, len(h.levels[0].F), "LimitOperator",
+                                               h.levels[0].hole)
         self.n = int(n_vertices)
         self.n_samples = len(self.face_ids)
         self.derivatives = bool(derivatives)

@@ -96,7 +96,7 @@ def check_variant(name: str, command: str) -> None:
         raise ValueError(expected(f"{command} --variant", f"one of {', '.join(usable)}", repr(name)))
 
 
-def _render(V, F, args, creases, log):
+def _render(V, F, args, model, log):
     """Set the variant, render the limit surface; returns (sRGB image, shape)."""
     from mi_loop.render import scene as render
     from mi_loop.render.variant import set_variant
@@ -105,7 +105,7 @@ def _render(V, F, args, creases, log):
     set_variant(args.variant)
     log.say(f"evaluating the limit surface at level {args.level} and rendering "
             f"{args.resolution}x{args.resolution} at {args.spp} spp")
-    return render.render_limit_surface(V, F, level=args.level, creases=creases,
+    return render.render_limit_surface(V, F, level=args.level, **model,
                                        resolution=args.resolution, spp=args.spp)
 
 
@@ -119,7 +119,7 @@ def _demo(args, log) -> None:
     validate_mesh(V, F)
     log.say(f"control mesh '{args.shape}': {len(V)} vertices, {len(F)} faces")
     written = [io.write_ply(out / "control.ply", V, F)]
-    image, shape = _render(V, F, args, None, log)
+    image, shape = _render(V, F, args, {}, log)
     P, N, F_tess = plugin.mesh_arrays(shape)
     log.say(f"limit surface: {len(P)} vertices, {len(F_tess)} triangles")
     written.append(io.write_ply(out / "limit.ply", P, F_tess, normals=N))
@@ -128,16 +128,17 @@ def _demo(args, log) -> None:
 
 
 def _render_file(args, log) -> None:
-    from mi_loop.render.plugin import parse_crease_text
+    from mi_loop.render.plugin import parse_corner_text, parse_crease_text
 
     if args.output.suffix.lower() != ".png":
         raise ValueError(expected("render --output", "a .png file", f"'{args.output}'"))
-    creases = parse_crease_text(args.creases)
+    model = dict(creases=parse_crease_text(args.creases), corners=parse_corner_text(args.corners),
+                 boundary=args.boundary, crease_method=args.crease_method)
     check_variant(args.variant, "render")
     io.ensure_writable_dir(args.output.parent)
     V, F = io.read_mesh(args.control)
     log.say(f"control mesh '{args.control}': {len(V)} vertices, {len(F)} faces")
-    image, _ = _render(V, F, args, creases, log)
+    image, _ = _render(V, F, args, model, log)
     log.wrote(io.write_png(args.output, image))
 
 

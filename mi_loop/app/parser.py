@@ -410,7 +410,14 @@ def build_parser() -> argparse.ArgumentParser:
     render = sub.add_parser("render", parents=[common], help="render the limit surface of a control mesh file")
     render.add_argument("control", type=Path, help="control mesh (PLY, OBJ or OFF)")
     render.add_argument("-o", "--output", required=True, type=Path, help="PNG file to write")
-    render.add_argument("--creases", default="", help="sharp edges as vertex pairs, e.g. '0 1, 1 2'")
+    render.add_argument("--creases", default="",
+                        help="sharp edges as vertex pairs, optional sharpness (default inf), e.g. '0 1, 1 2 2.5'")
+    render.add_argument("--corners", default="",
+                        help="sharp vertices with an optional sharpness (default inf), e.g. '4, 7 1.5'")
+    render.add_argument("--boundary", choices=["edge_and_corner", "edge_only", "none"], default="edge_and_corner",
+                        help="boundary interpolation, as OpenSubdiv's (default: edge_and_corner)")
+    render.add_argument("--crease-method", choices=["uniform", "chaikin"], default="uniform",
+                        help="how semi-sharp creases decay, as OpenSubdiv's (default: uniform)")
     _render_options(render)
 
     _fit_parser(sub, common)

@@ -37,6 +37,14 @@ class Topology:
         Half-edge ``v -> w`` (flat corner index ``3 f + c`` of ``F[f, c] = v``,
         ``F[f, (c + 1) % 3] = w``) to its opposite ``w -> v``, -1 on a
         boundary; derived from ``F`` and ``face_edge`` when not given.
+    vertex_sharpness : (n,) float64 numpy array, optional
+        OpenSubdiv's vertex sharpness (0 none, ``inf`` an infinitely sharp
+        corner); zeros when not given.
+    crease_method : str
+        ``'uniform'`` or ``'chaikin'``: how semi-sharp edges decay.
+    hole : (m,) bool numpy array, optional
+        Faces that are holes (boundary rule ``'none'``): subdivided like the
+        others, but not part of the limit surface; none when not given.
 
     Notes
     -----
@@ -64,15 +72,23 @@ class Topology:
     sharpness: np.ndarray
     boundary: np.ndarray
     twin: np.ndarray | None = None
+    vertex_sharpness: np.ndarray | None = None
+    crease_method: str = "uniform"
+    hole: np.ndarray | None = None
 
     def __post_init__(self):
         if self.twin is None:
             self.twin = _twins(np.asarray(self.face_edge).ravel())
+        if self.vertex_sharpness is None:
+            self.vertex_sharpness = np.zeros(self.n)
+        if self.hole is None:
+            self.hole = np.zeros(len(self.F), dtype=bool)
         self._he_sorted = None      # directed-edge keys for half_edge(), built on first use
         self._walk = None           # half-edge tables for the walks, built on first use
 
     @classmethod
-    def build(cls, F: np.ndarray, n: int, sharpness_of=None) -> Topology:
+    def build(cls, F: np.ndarray, n: int, sharpness_of=None, corners_of=None,
+              boundary: str = "edge_and_corner", crease_method: str = "uniform") -> Topology:
         """Build the connectivity of validated faces.
 
         Parameters
@@ -83,6 +99,15 @@ class Topology:
             Number of vertices.
         sharpness_of : tuple ``(E_c (c, 2) int numpy array, s (c,) float numpy array)`` or None
             Crease edges and their sharpness, as returned by :func:`check_creases`.
+        corners_of : tuple ``(ids (c,) int numpy array, s (c,) float numpy array)`` or None
+            Vertex sharpness, as returned by :func:`check_corners`.
+        boundary : str
+            OpenSubdiv's boundary interpolation (see
+            :func:`mi_loop.mesh.topology.sharp_topology`): ``'edge_and_corner'``
+            makes a boundary vertex of one face an infinitely sharp corner;
+            ``'none'`` marks holes; ``'edge_only'`` neither.
+        crease_method : str
+            Kept for :func:`~mi_loop.subdiv.subdivision.subdivide_topology`.
 
         Returns
         -------
@@ -105,16 +130,28 @@ class Topology:
         paired = np.flatnonzero(~first)             # order[i] and order[i - 1] share an edge
         twin = np.full(len(keys), -1, dtype=np.int64)
         twin[order[paired]], twin[order[paired - 1]] = order[paired - 1], order[paired]
-        boundary = np.ones(len(E), dtype=bool)
-        boundary[face_edge[order[paired]]] = False
-        sharp = np.zeros(len(E))
-        sharp[boundary] = np.inf
+        is_boundary = np.ones(len(E), dtype=bool)
+        is_boundary[face_edge[order[paired]]] = False
+        given = np.zeros(len(E))
         if sharpness_of is not None:
             Ec, sc = sharpness_of
             idx = np.searchsorted(uniq, np.minimum(Ec[:, 0], Ec[:, 1]) * n
                                   + np.maximum(Ec[:, 0], Ec[:, 1]))
-            sharp[idx] = np.maximum(sharp[idx], sc)
-        return cls(F, int(n), E, face_edge.reshape(-1, 3), sharp, boundary, twin)
+            np.maximum.at(given, idx, sc)
+        sharp = np.where(is_boundary, np.inf, given)         # boundary edges are infinitely sharp
+        vs = np.zeros(int(n))
+        if corners_of is not None:
+            np.maximum.at(vs, corners_of[0], corners_of[1])
+        on_boundary = np.bincount(E[is_boundary].ravel(), minlength=n)
+        faces_at = np.bincount(F.ravel(), minlength=n)
+        if boundary == "edge_and_corner":
+            vs[(faces_at == 1) & (on_boundary == 2)] = np.inf
+        hole = None
+        if boundary == "none":
+            # OpenSubdiv: the faces at a boundary vertex with a boundary edge not given as infinitely sharp
+            soft = np.bincount(E[is_boundary & ~np.isinf(given)].ravel(), minlength=n) > 0
+            hole = soft[F].any(1)
+        return cls(F, int(n), E, face_edge.reshape(-1, 3), sharp, is_boundary, twin, vs, crease_method, hole)
 
     # -- half-edge walks -----------------------------------------------------
     def walk_tables(self) -> HalfEdgeTables:
@@ -250,18 +287,18 @@ class Topology:
         return np.bincount(s, minlength=self.n)
 
     def vertex_kind(self) -> np.ndarray:
-        """Return the subdivision rule of every vertex.
+        """Return the subdivision rule of every vertex (OpenSubdiv's ``DetermineVertexVertexRule``).
 
         Returns
         -------
         (n,) int64 numpy array
             0 smooth (a dart included), 1 crease (two sharp edges), 2 corner
-            (three or more sharp edges, or a boundary vertex with one face).
+            (vertex sharpness > 0, e.g. a boundary vertex with one face under
+            the edge-and-corner rule, or three or more sharp edges).
         """
         sc = self.sharp_count()
-        on_boundary = np.bincount(self.E[self.boundary].ravel(), minlength=self.n) > 0
         kind = np.where(sc >= 3, 2, np.where(sc == 2, 1, 0))
-        kind[on_boundary & (self.face_count() == 1)] = 2
+        kind[self.vertex_sharpness > 0] = 2
         return kind
 
 

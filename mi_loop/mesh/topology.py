@@ -15,8 +15,31 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from mi_loop.errors import fail
+from mi_loop.mesh.halfedge import Topology
 
-__all__ = ["check_creases", "validate_faces", "validate_mesh"]
+__all__ = ["BOUNDARY_RULES", "CREASE_METHODS", "check_corners", "check_creases", "check_rules", "sharp_topology",
+           "validate_faces", "validate_mesh"]
+
+
+#: Boundary interpolation rules (OpenSubdiv's ``VtxBoundaryInterpolation``).
+BOUNDARY_RULES = ("edge_and_corner", "edge_only", "none")
+#: Crease methods (OpenSubdiv's ``CreasingMethod``).
+CREASE_METHODS = ("uniform", "chaikin")
+#: Sharpness from which an edge or vertex is infinitely sharp (OpenSubdiv's ``SHARPNESS_INFINITE``).
+INFINITE_SHARPNESS = 10.0
+
+
+def _sharpness_values(s, count: int, what: str, func: str) -> np.ndarray:
+    """``count`` sharpness values >= 0 as float64, ``>= 10`` made ``inf`` (else a named ValueError)."""
+    s = np.full(count, np.inf) if s is None else np.asarray(s, dtype=np.float64).reshape(-1)
+    if len(s) != count:
+        fail(func, f"one sharpness per {what} ({count})", f"{len(s)} sharpness values")
+    bad = np.flatnonzero(~(s >= 0))
+    if len(bad):
+        element = what.split()[0]
+        fail(func, f"{element} sharpness >= 0 (0 smooth, 10 or more or inf infinitely sharp)",
+             f"sharpness {s[bad[0]]} at {element} {bad[0]}")
+    return np.where(s >= INFINITE_SHARPNESS, np.inf, s)
 
 
 def check_creases(creases, F: np.ndarray, n: int, func: str):
@@ -26,7 +49,9 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     ----------
     creases : None, (c, 2) int array_like, or tuple ``(E, sharpness)``
         None; vertex pairs of infinitely sharp edges; or pairs with one
-        sharpness each, a positive integer up to 4 or ``inf``.
+        sharpness each, any value ``>= 0`` as in OpenSubdiv (0 smooth,
+        fractional values blend the sharp and smooth rules at the last step,
+        10 or more, or ``inf``, infinitely sharp).
     F : (m, 3) int64 numpy array
         Faces of the mesh, already validated.
     n : int
@@ -37,22 +62,21 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     Returns
     -------
     tuple ``(E (c, 2) int64 numpy array, s (c,) float64 numpy array)`` or None
-        None when there are no creases.
+        None when there are no creases; sharpness ``>= 10`` is returned as ``inf``.
 
     Raises
     ------
     ValueError
         Wrong shape or dtype, a sharpness count that differs from the edge
-        count, a sharpness that is not a positive integer (at most 4) or
-        ``inf``, a pair that is not an edge of the mesh; the first offending
-        crease is named.
+        count, a negative or NaN sharpness, a pair that is not an edge of the
+        mesh; the first offending crease is named.
 
     Examples
     --------
     >>> F = np.array([[0, 1, 2], [0, 2, 3]])
-    >>> E, s = check_creases(np.array([[2, 0]]), F, 4, "f")
+    >>> E, s = check_creases((np.array([[2, 0], [0, 1]]), [2.5, 12]), F, 4, "f")
     >>> E.tolist(), s.tolist()
-    ([[2, 0]], [inf])
+    ([[2, 0], [0, 1]], [2.5, inf])
     >>> check_creases(np.array([[1, 3]]), F, 4, "f")
     Traceback (most recent call last):
     ...
@@ -70,16 +94,7 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     if E.ndim != 2 or E.shape[1] != 2 or not np.issubdtype(E.dtype, np.integer):
         fail(func, "creases as an integer array of shape (c, 2)", f"{E.dtype} array of shape {E.shape}")
     E = E.astype(np.int64)
-    s = np.full(len(E), np.inf) if s is None else np.asarray(s, dtype=np.float64).reshape(-1)
-    if len(s) != len(E):
-        fail(func, f"one sharpness per crease edge ({len(E)})", f"{len(s)} sharpness values")
-    bad = np.flatnonzero(~(s > 0) | (np.isfinite(s) & (s != np.round(s))))
-    if len(bad):
-        fail(func, "crease sharpness a positive integer or inf", f"sharpness {s[bad[0]]} at crease {bad[0]}")
-    bad = np.flatnonzero(np.isfinite(s) & (s > 4))
-    if len(bad):
-        fail(func, "finite crease sharpness at most 4 (use inf for sharper)",
-             f"sharpness {s[bad[0]]:g} at crease {bad[0]}")
+    s = _sharpness_values(s, len(E), "crease edge", func)
     bad = np.flatnonzero((E < 0).any(1) | (E >= n).any(1) | (E[:, 0] == E[:, 1]))
     if len(bad):
         fail(func, f"creases as pairs of distinct vertex indices in [0, {n})",
@@ -90,6 +105,98 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     if len(bad):
         fail(func, "crease edges that are edges of the mesh", f"crease {bad[0]} = {E[bad[0]].tolist()}")
     return E, s
+
+
+def check_corners(corners, n: int, func: str):
+    """Normalise a ``corners`` argument (vertex sharpness) to ``(ids (c,) int64, s (c,) float64)`` or None.
+
+    Parameters
+    ----------
+    corners : None, (c,) int array_like, or tuple ``(vertex_ids, sharpness)``
+        None; vertices that are infinitely sharp corners; or vertices with
+        one sharpness each, ``>= 0`` as for creases (OpenSubdiv's vertex
+        sharpness: the corner rule while it lasts, decremented by one a step).
+    n : int
+        Number of vertices.
+    func : str
+        Name of the calling public function, for the message.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or dtype, a count mismatch, a vertex outside ``[0, n)``,
+        a negative or NaN sharpness; the first offending corner is named.
+
+    Examples
+    --------
+    >>> ids, s = check_corners(([3, 0], [0.5, np.inf]), 4, "f")
+    >>> ids.tolist(), s.tolist()
+    ([3, 0], [0.5, inf])
+    >>> check_corners([4], 4, "f")
+    Traceback (most recent call last):
+    ...
+    ValueError: f(): expected corner vertices in [0, 4), got vertex 4 at corner 0
+    """
+    if corners is None:
+        return None
+    if isinstance(corners, tuple) and len(corners) == 2:
+        ids, s = corners
+    else:
+        ids, s = corners, None
+    ids = np.asarray(ids)
+    if ids.size == 0:
+        return None
+    if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
+        fail(func, "corners as a 1-D integer array of vertex ids", f"{ids.dtype} array of shape {ids.shape}")
+    ids = ids.astype(np.int64)
+    s = _sharpness_values(s, len(ids), "corner vertex", func)
+    bad = np.flatnonzero((ids < 0) | (ids >= n))
+    if len(bad):
+        fail(func, f"corner vertices in [0, {n})", f"vertex {ids[bad[0]]} at corner {bad[0]}")
+    return ids, s
+
+
+def check_rules(boundary: str, crease_method: str, func: str):
+    """The boundary rule and crease method, checked against :data:`BOUNDARY_RULES` and :data:`CREASE_METHODS`."""
+    if boundary not in BOUNDARY_RULES:
+        fail(func, f"boundary one of {', '.join(map(repr, BOUNDARY_RULES))}", repr(boundary))
+    if crease_method not in CREASE_METHODS:
+        fail(func, f"crease_method one of {', '.join(map(repr, CREASE_METHODS))}", repr(crease_method))
+    return boundary, crease_method
+
+
+def sharp_topology(F, n_vertices: int, func: str, creases=None, corners=None,
+                   boundary: str = "edge_and_corner", crease_method: str = "uniform"):
+    """Validate a control mesh and its crease model and build its :class:`~mi_loop.mesh.halfedge.Topology`.
+
+    Parameters
+    ----------
+    F : (m, 3) int array_like
+        Control faces (checked by :func:`validate_faces`).
+    n_vertices : int
+        Number of control vertices.
+    func : str
+        Name of the calling public function, for messages.
+    creases, corners : optional
+        See :func:`check_creases` and :func:`check_corners`.
+    boundary : {'edge_and_corner', 'edge_only', 'none'}
+        OpenSubdiv's boundary interpolation. Boundary edges are infinitely
+        sharp under every rule; ``'edge_and_corner'`` also makes a boundary
+        vertex of one face an infinitely sharp corner; ``'none'`` makes the
+        faces at a boundary vertex holes unless all of its boundary edges are
+        given as infinitely sharp creases (see :attr:`Topology.hole`).
+    crease_method : {'uniform', 'chaikin'}
+        How semi-sharp creases decay (see :func:`mi_loop.subdivision_matrix`).
+
+    Returns
+    -------
+    Topology
+    """
+    boundary, crease_method = check_rules(boundary, crease_method, func)
+    F = validate_faces(F, n_vertices, func)
+    n = int(n_vertices)
+    return Topology.build(F, n, check_creases(creases, F, n, func), check_corners(corners, n, func),
+                          boundary, crease_method)
 
 
 def validate_faces(F, n_vertices: int, func: str = "validate_mesh") -> np.ndarray:

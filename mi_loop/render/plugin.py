@@ -5,7 +5,10 @@ After :func:`register` (called by :func:`mi_loop.set_variant`), scenes can say::
     <shape type="loop_subdiv">
         <string name="filename" value="blob.ply"/>   <!-- control mesh: PLY, OBJ or OFF -->
         <integer name="level" value="3"/>            <!-- 4**level triangles per control face -->
-        <string name="creases" value="0 1, 1 2"/>    <!-- optional sharp edges, vertex pairs -->
+        <string name="creases" value="0 1, 1 2 2.5"/> <!-- optional sharp edges: pairs [sharpness] -->
+        <string name="corners" value="4, 7 1.5"/>    <!-- optional vertex sharpness: vertex [sharpness] -->
+        <string name="boundary" value="edge_only"/>  <!-- edge_and_corner (default), edge_only, none -->
+        <string name="crease_method" value="chaikin"/> <!-- uniform (default) or chaikin -->
         <bsdf type="diffuse">                        <!-- optional: colours of a PLY control mesh -->
             <texture type="mesh_attribute" name="reflectance">
                 <string name="name" value="vertex_color"/>
@@ -49,52 +52,95 @@ import re
 
 import numpy as np
 
-__all__ = ["COLOR_ATTRIBUTE", "PLUGIN_NAME", "albedo_bsdf", "create", "mesh_arrays", "parse_crease_text",
-           "plain_mesh", "register"]
+__all__ = ["COLOR_ATTRIBUTE", "PLUGIN_NAME", "albedo_bsdf", "create", "mesh_arrays", "parse_corner_text",
+           "parse_crease_text", "plain_mesh", "register"]
 
 #: Name of the plugin in scene dictionaries and XML files.
 PLUGIN_NAME = "loop_subdiv"
 
-_PAIR = re.compile(r"^\s*(\d+)\s+(\d+)\s*$")
+_NUMBER = r"([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?|inf)"
+_PAIR = re.compile(r"^\s*(\d+)\s+(\d+)(?:\s+" + _NUMBER + r")?\s*$")
+_CORNER = re.compile(r"^\s*(\d+)(?:\s+" + _NUMBER + r")?\s*$")
 _CLASSES: dict = {}
 
 
-def parse_crease_text(text: str) -> np.ndarray | None:
-    """Parse the ``creases`` property: comma- or semicolon-separated vertex pairs.
+def _entries(text: str, pattern, what: str, example: str):
+    """Comma- or semicolon-separated entries of ``text`` matched by ``pattern``: list of match groups."""
+    entries = [e for e in re.split(r"[,;]", text) if e.strip()]
+    out = []
+    for k, entry in enumerate(entries):
+        match = pattern.match(entry)
+        if match is None:
+            raise ValueError(f"loop_subdiv: {what} entry {k} is {entry.strip()!r}, expected {example}")
+        out.append(match.groups())
+    return out
+
+
+def parse_crease_text(text: str):
+    """Parse the ``creases`` property: comma- or semicolon-separated vertex pairs, each with an optional sharpness.
 
     Parameters
     ----------
     text : str
-        E.g. ``"0 1, 1 2; 2 3"``. Blank means no creases.
+        E.g. ``"0 1, 1 2 2.5; 2 3 inf"``: a pair without a sharpness is
+        infinitely sharp. Blank means no creases.
 
     Returns
     -------
-    (c, 2) int64 NumPy array or None
-        Crease edges as control-vertex pairs, None if ``text`` is blank.
+    tuple ``((c, 2) int64 NumPy array, (c,) float64 NumPy array)`` or None
+        Crease edges as control-vertex pairs and their sharpness, None if
+        ``text`` is blank.
 
     Raises
     ------
     ValueError
-        If an entry is not two non-negative integers.
+        If an entry is not two non-negative integers and an optional sharpness.
 
     Examples
     --------
-    >>> parse_crease_text("0 1, 1 2").tolist()
-    [[0, 1], [1, 2]]
+    >>> E, s = parse_crease_text("0 1, 1 2 2.5")
+    >>> E.tolist(), s.tolist()
+    ([[0, 1], [1, 2]], [inf, 2.5])
     >>> parse_crease_text("  ") is None
     True
     """
-    entries = [e for e in re.split(r"[,;]", text) if e.strip()]
+    entries = _entries(text, _PAIR, "creases",
+                       "two vertex indices and an optional sharpness such as '0 1' or '0 1 2.5'")
     if not entries:
         return None
-    pairs = []
-    for k, entry in enumerate(entries):
-        match = _PAIR.match(entry)
-        if match is None:
-            raise ValueError(f"loop_subdiv: creases entry {k} is {entry.strip()!r}, "
-                             "expected two vertex indices such as '0 1'")
-        pairs.append((int(match.group(1)), int(match.group(2))))
-    return np.asarray(pairs, dtype=np.int64)
+    E = np.asarray([(int(a), int(b)) for a, b, _ in entries], dtype=np.int64)
+    return E, np.asarray([float(x) if x else np.inf for _, _, x in entries])
+
+
+def parse_corner_text(text: str):
+    """Parse the ``corners`` property: comma- or semicolon-separated vertices, each with an optional sharpness.
+
+    Parameters
+    ----------
+    text : str
+        E.g. ``"4, 7 1.5"``: a vertex without a sharpness is an infinitely
+        sharp corner. Blank means none.
+
+    Returns
+    -------
+    tuple ``((c,) int64 NumPy array, (c,) float64 NumPy array)`` or None
+
+    Raises
+    ------
+    ValueError
+        If an entry is not a non-negative integer and an optional sharpness.
+
+    Examples
+    --------
+    >>> ids, s = parse_corner_text("4, 7 1.5")
+    >>> ids.tolist(), s.tolist()
+    ([4, 7], [inf, 1.5])
+    """
+    entries = _entries(text, _CORNER, "corners", "a vertex index and an optional sharpness such as '4' or '4 1.5'")
+    if not entries:
+        return None
+    return (np.asarray([int(v) for v, _ in entries], dtype=np.int64),
+            np.asarray([float(x) if x else np.inf for _, x in entries]))
 
 
 # The one place that knows Mitsuba's mesh-buffer names (``mi.traverse`` keys of a mesh).
@@ -163,7 +209,7 @@ def _shape_class(variant: str):
 
     from mi_loop import io
     from mi_loop.ad.operator import LimitOperator
-    from mi_loop.mesh.topology import validate_mesh
+    from mi_loop.mesh.topology import sharp_topology, validate_mesh
     from mi_loop.subdiv.tessellation import tessellate
 
     class LoopSubdivMesh(mi.Mesh):
@@ -174,23 +220,34 @@ def _shape_class(variant: str):
         props : mi.Properties
             ``filename`` (str, control mesh, resolved against the scene's
             file resolver), ``level`` (int >= 0, default 3), ``creases``
-            (str, see :func:`parse_crease_text`), ``to_world`` (transform), plus
-            the usual shape children (bsdf, emitter, ...).
+            (str, see :func:`parse_crease_text`), ``corners`` (str, see
+            :func:`parse_corner_text`), ``boundary`` and ``crease_method``
+            (str, see :func:`mi_loop.subdivision_matrix`), ``to_world``
+            (transform), plus the usual shape children (bsdf, emitter, ...).
+            Under ``boundary = 'none'`` the holes are left out of the mesh.
         control_mesh : ((n, 3) float, (m, 3) int) NumPy arrays, optional
             Control vertices and faces given directly instead of ``filename``.
-        creases : None, (c, 2) int array or (E, sharpness), optional
-            Crease edges given directly instead of the ``creases`` property.
+        model : dict, optional
+            Crease model given directly (keywords ``creases``, ``corners``,
+            ``boundary``, ``crease_method`` of :class:`mi_loop.LimitOperator`);
+            the properties of the same names override it.
         albedo : (n, 3) float array, optional
             Per-control-vertex linear RGB given directly (else the control
             mesh file's vertex colours, if it has any).
         """
 
-        def __init__(self, props, control_mesh=None, creases=None, albedo=None):
+        def __init__(self, props, control_mesh=None, model=None, albedo=None):
             level = props.get("level", 3)
             if not isinstance(level, int) or level < 0:
                 raise ValueError(f"loop_subdiv: expected an integer level >= 0, got {level!r}")
+            model = dict(model or {})
             if "creases" in props:
-                creases = parse_crease_text(props.get("creases"))
+                model["creases"] = parse_crease_text(props.get("creases"))
+            if "corners" in props:
+                model["corners"] = parse_corner_text(props.get("corners"))
+            for key in ("boundary", "crease_method"):
+                if key in props:
+                    model[key] = props.get(key)
             if control_mesh is None:
                 if "filename" not in props:
                     raise ValueError("loop_subdiv: missing the 'filename' property (control mesh PLY/OBJ/OFF)")
@@ -204,12 +261,17 @@ def _shape_class(variant: str):
             if "to_world" in props:
                 T = np.asarray(props.get("to_world").matrix, dtype=np.float64)
                 V = V @ T[:3, :3].T + T[:3, 3]
-            face_ids, uv, F_tess = tessellate(F, level)
+            topo = sharp_topology(F, len(V), "loop_subdiv", **model)
+            if topo.hole.all():
+                raise ValueError(f"loop_subdiv: every one of the {len(F)} control faces is a hole under "
+                                 "boundary 'none' (each has a vertex on a boundary that is not an infinitely "
+                                 "sharp crease); nothing to show")
+            face_ids, uv, F_tess = tessellate(F, level, np.flatnonzero(~topo.hole))
             super().__init__(props.id() or PLUGIN_NAME, len(uv), len(F_tess), props,
                              has_vertex_normals=True)
             self._level = level
             self._n = len(V)
-            self._operator = LimitOperator(F, len(V), face_ids, uv, creases=creases)
+            self._operator = LimitOperator(F, len(V), face_ids, uv, **model)
             self._x = mi.Float(V.astype(np.float32).ravel())
             self._c = None
             self._update_geometry(faces=mi.UInt32(np.asarray(F_tess, dtype=np.uint32).ravel()))
@@ -306,7 +368,8 @@ def _current_class(caller: str):
     return _shape_class(variant)
 
 
-def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None):
+def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None, *, corners=None,
+           boundary: str = "edge_and_corner", crease_method: str = "uniform"):
     """Build a ``loop_subdiv`` shape from control-mesh arrays (no file needed).
 
     Parameters
@@ -319,6 +382,8 @@ def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None):
         Tessellation level (4**level triangles per control face).
     creases : None, (c, 2) int array or (E, sharpness), optional
         Sharp edges, as accepted by :class:`mi_loop.LimitOperator`.
+    corners, boundary, crease_method : optional
+        The rest of the crease model, as in :func:`mi_loop.subdivision_matrix`.
     bsdf : mi.BSDF, optional
         Surface material (if None: :func:`albedo_bsdf` with ``albedo``, else
         Mitsuba's default diffuse).
@@ -347,7 +412,8 @@ def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None):
         bsdf = mi.load_dict(albedo_bsdf())
     if bsdf is not None:
         props["bsdf"] = bsdf
-    return cls(props, control_mesh=(V, F), creases=creases, albedo=albedo)
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
+    return cls(props, control_mesh=(V, F), model=model, albedo=albedo)
 
 
 def albedo_bsdf() -> dict:

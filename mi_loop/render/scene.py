@@ -191,7 +191,8 @@ def to_srgb(image) -> np.ndarray:
 
 
 def render_limit_surface(V, F, *, level: int = 3, creases=None, resolution: int = 256,
-                         spp: int = 64, seed: int = 0, azimuth: float = 35.0, elevation: float = 25.0):
+                         spp: int = 64, seed: int = 0, azimuth: float = 35.0, elevation: float = 25.0,
+                         corners=None, boundary: str = "edge_and_corner", crease_method: str = "uniform"):
     """Render the Loop limit surface of a control mesh with the default lights and plastic.
 
     Parameters
@@ -206,6 +207,8 @@ def render_limit_surface(V, F, *, level: int = 3, creases=None, resolution: int 
         Sharp edges.
     resolution, spp, seed, azimuth, elevation :
         Image size, samples per pixel, sampler seed and view direction.
+    corners, boundary, crease_method : optional
+        The rest of the crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -218,7 +221,8 @@ def render_limit_surface(V, F, *, level: int = 3, creases=None, resolution: int 
 
     from mi_loop.render.plugin import create
 
-    shape = create(V, F, level=level, creases=creases, bsdf=mi.load_dict(PLASTIC))
+    shape = create(V, F, level=level, creases=creases, bsdf=mi.load_dict(PLASTIC), corners=corners,
+                   boundary=boundary, crease_method=crease_method)
     scene = mi.load_dict(scene_dict(shape, views=[(azimuth, elevation)], resolution=resolution))
     image = render_view(scene, spp=spp, seed=seed)
     return to_srgb(image), shape

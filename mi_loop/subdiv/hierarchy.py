@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.mesh.halfedge import Topology
-from mi_loop.mesh.topology import check_creases, validate_faces
+from mi_loop.mesh.topology import sharp_topology
 from mi_loop.subdiv.irregular import build_locals
 from mi_loop.subdiv.patches import (
     corner_regular,
@@ -160,11 +160,14 @@ def _group_rows(bits: np.ndarray):
     return order[new], group
 
 
-def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarchy:
+def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix", *, corners=None,
+                    boundary="edge_and_corner", crease_method="uniform") -> Hierarchy:
     """Validate and refine a control mesh until every face has one irregular corner at most.
 
-    One step suffices without semi-sharp creases; with them, the mesh is
-    refined until the largest finite sharpness has expired.
+    One step suffices without semi-sharp creases or corners; with them, the
+    mesh is refined until the largest finite sharpness has expired
+    (``ceil(s)`` steps: both crease methods lower the largest sharpness by at
+    least one a step).
 
     Parameters
     ----------
@@ -176,6 +179,8 @@ def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarc
         See :func:`mi_loop.subdivision_matrix`.
     func : str, optional
         Name of the calling public function, for messages.
+    corners, boundary, crease_method : optional
+        The rest of the crease model, see :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -193,11 +198,10 @@ def build_hierarchy(F, n_vertices, creases=None, func="limit_matrix") -> Hierarc
     >>> len(h.S), h.top.n, h.composed().shape
     (1, 10, (10, 4))
     """
-    F = validate_faces(F, n_vertices, func)
-    cr = check_creases(creases, F, int(n_vertices), func)
-    topo = Topology.build(F, int(n_vertices), cr)
-    finite = topo.sharpness[np.isfinite(topo.sharpness)]
-    n_levels = max(1, int(finite.max()) if len(finite) else 1)
+    topo = sharp_topology(F, n_vertices, func, creases, corners, boundary, crease_method)
+    s = np.concatenate([topo.sharpness, topo.vertex_sharpness])
+    finite = s[np.isfinite(s)]
+    n_levels = max(1, int(np.ceil(finite.max())) if len(finite) else 1)
     levels, Ss = [topo], []
     for _ in range(n_levels):
         S, topo = subdivide_topology(topo)

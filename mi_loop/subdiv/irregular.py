@@ -171,7 +171,11 @@ def _neighbourhood(topo: Topology, faces: np.ndarray):
     edges = np.unique(topo.face_edge[keep].ravel())
     edges = edges[(topo.sharpness[edges] > 0) & ~topo.boundary[edges]]
     creases = (vid[topo.E[edges]], topo.sharpness[edges]) if len(edges) else None
-    sub = Topology.build(vid[F[keep]], len(used), creases)
+    vs = topo.vertex_sharpness[used]
+    sharp_v = np.flatnonzero(vs > 0)
+    corners = (sharp_v, vs[sharp_v]) if len(sharp_v) else None
+    # the vertex sharpness as given: the sub-mesh's own boundary vertices of one face are not corners
+    sub = Topology.build(vid[F[keep]], len(used), creases, corners, "edge_only", topo.crease_method)
     return sub, np.searchsorted(keep, faces)
 
 

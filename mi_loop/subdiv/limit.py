@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.errors import fail
-from mi_loop.mesh.topology import validate_faces
+from mi_loop.mesh.topology import sharp_topology
 from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_rows
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
 from mi_loop.subdiv.irregular import MAX_DEPTH
@@ -217,7 +217,7 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
     return [(idx, W[d]) for d in derivatives]
 
 
-def check_samples(face_ids, uv, m, func):
+def check_samples(face_ids, uv, m, func, hole=None):
     """Check limit-sample parameters; return int64 face ids and ``uv`` snapped into the triangle.
 
     Parameters
@@ -231,6 +231,8 @@ def check_samples(face_ids, uv, m, func):
         Number of control faces.
     func : str
         Name of the calling public function, for the message.
+    hole : (m,) bool numpy array, optional
+        Faces that are holes (:attr:`~mi_loop.mesh.halfedge.Topology.hole`).
 
     Returns
     -------
@@ -240,8 +242,8 @@ def check_samples(face_ids, uv, m, func):
     Raises
     ------
     ValueError
-        Bad shapes or dtype, a face id out of range, ``uv`` outside the
-        triangle; the first offending sample is named.
+        Bad shapes or dtype, a face id out of range or on a hole, ``uv``
+        outside the triangle; the first offending sample is named.
 
     Examples
     --------
@@ -261,6 +263,11 @@ def check_samples(face_ids, uv, m, func):
     bad = np.flatnonzero((face_ids < 0) | (face_ids >= m))
     if len(bad):
         fail(func, f"face ids in [0, {m})", f"face id {face_ids[bad[0]]} at sample {bad[0]}")
+    if hole is not None and hole[face_ids].any():
+        bad = np.flatnonzero(hole[face_ids])
+        fail(func, "samples on faces of the limit surface",
+             f"face {face_ids[bad[0]]} at sample {bad[0]}, a hole under boundary='none' (a vertex of it is "
+             f"on a boundary that is not an infinitely sharp crease); {int(hole.sum())} of {m} faces are holes")
     tol = 1e-12
     u, v = uv[:, 0], uv[:, 1]
     ok = u >= -tol                      # also False for NaN and -inf; u + v catches +inf
@@ -315,7 +322,8 @@ def _all_corners(uv) -> bool:
     return bool((((u == 0) | (u == 1)) & ((v == 0) | (v == 1)) & (u + v <= 1)).all())
 
 
-def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
+def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None, *, corners=None,
+                 boundary="edge_and_corner", crease_method="uniform"):
     """Return the sparse matrix of exact limit points (or derivatives) at ``(face, u, v)``.
 
     Parameters
@@ -333,6 +341,8 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
         See :func:`mi_loop.subdivision_matrix`.
     derivative : None, 'u' or 'v'
         Limit point, or its parametric derivative.
+    corners, boundary, crease_method : optional
+        The rest of OpenSubdiv's crease model, see :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -342,8 +352,9 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     Raises
     ------
     ValueError
-        Invalid mesh, creases or samples, or an unknown ``derivative``; the
-        message names the offending element. Two faces on the same three
+        Invalid mesh, crease model or samples, a sample on a hole (boundary
+        ``'none'``), or an unknown ``derivative``; the message names the
+        offending element. Two faces on the same three
         vertices (a closed two-triangle component) are refused, see
         :func:`~mi_loop.mesh.topology.validate_faces`.
 
@@ -367,14 +378,15 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None):
     """
     if derivative not in (None, "u", "v"):
         fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     if derivative is None and _all_corners(uv):   # the vertex masks, no hierarchy
         from mi_loop.subdiv.masks import _position_masks
 
-        F = validate_faces(F, n_vertices, "limit_matrix")
-        face_ids, uv = check_samples(face_ids, uv, len(F), "limit_matrix")
+        topo = sharp_topology(F, n_vertices, "limit_matrix", **model)
+        face_ids, uv = check_samples(face_ids, uv, len(topo.F), "limit_matrix", topo.hole)
         corner = np.where(uv[:, 0] == 1, 1, np.where(uv[:, 1] == 1, 2, 0))
-        return _position_masks(F, n_vertices, creases, "limit_matrix")[F[face_ids, corner]]
-    h = build_hierarchy(F, n_vertices, creases)
-    face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix")
+        return _position_masks(topo, "limit_matrix", model)[topo.F[face_ids, corner]]
+    h = build_hierarchy(F, n_vertices, func="limit_matrix", **model)
+    face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix", h.levels[0].hole)
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))
     return (padded_to_csr(idx, W, h.top.n) @ h.composed()).tocsr()

@@ -5,8 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.errors import fail
-from mi_loop.mesh.halfedge import Topology
-from mi_loop.mesh.topology import check_creases, check_vertices, validate_faces
+from mi_loop.mesh.topology import check_vertices, sharp_topology, validate_faces
 from mi_loop.subdiv.hierarchy import build_hierarchy
 from mi_loop.subdiv.limit import level_rows, limit_matrix, padded_to_csr
 from mi_loop.subdiv.tessellation import tessellate
@@ -49,7 +48,8 @@ def vertex_samples(F, n_vertices: int):
     return face, _CORNER_UV[corner].copy()
 
 
-def limit_mesh(V, F, level: int = 3, creases=None):
+def limit_mesh(V, F, level: int = 3, creases=None, *, corners=None, boundary="edge_and_corner",
+               crease_method="uniform"):
     """Return a dense, watertight mesh of limit points and unit limit normals.
 
     The hierarchy is built once for the three row sets (points, d/du, d/dv).
@@ -62,8 +62,8 @@ def limit_mesh(V, F, level: int = 3, creases=None):
         Control faces.
     level : int, optional
         Tessellation level of :func:`~mi_loop.subdiv.tessellation.tessellate` (0 to 8).
-    creases : optional
-        As in :func:`mi_loop.subdivision_matrix`.
+    creases, corners, boundary, crease_method : optional
+        The crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -90,8 +90,9 @@ def limit_mesh(V, F, level: int = 3, creases=None):
     V = np.asarray(V, dtype=np.float64)
     if V.ndim != 2 or V.shape[1] != 3:
         fail("limit_mesh", "control points V of shape (n, 3)", f"shape {V.shape}")
-    h = build_hierarchy(F, len(V), creases, "limit_mesh")
-    fid, uv, F_t = tessellate(h.levels[0].F, level)
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
+    h = build_hierarchy(F, len(V), func="limit_mesh", **model)
+    fid, uv, F_t = tessellate(h.levels[0].F, level, np.flatnonzero(~h.levels[0].hole))   # holes left out
     VL = h.composed() @ V
     P, du, dv = (padded_to_csr(i, w, h.top.n) @ VL
                  for i, w in level_rows(h, fid, uv, (None, "u", "v")))
@@ -123,7 +124,7 @@ def limit_colors(colors, F, level: int = 3) -> np.ndarray:
     return np.clip(limit_matrix(F, len(colors), face_ids, uv) @ np.asarray(colors, dtype=np.float64), 0.0, 1.0)
 
 
-def limit_masks(F, n_vertices, creases=None):
+def limit_masks(F, n_vertices, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
     """Return the limit masks at the control vertices as a sparse matrix.
 
     Row ``i`` gives the limit point of control vertex ``i``: for a smooth
@@ -138,8 +139,8 @@ def limit_masks(F, n_vertices, creases=None):
         Control faces; every vertex must be used by a face.
     n_vertices : int
         Number of control vertices ``n``.
-    creases : optional
-        As in :func:`mi_loop.subdivision_matrix`.
+    creases, corners, boundary, crease_method : optional
+        The crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -162,11 +163,12 @@ def limit_masks(F, n_vertices, creases=None):
     >>> M.toarray()[0].round(6).tolist()             # valence 3: chi = 1 / (3 / (8 beta) + 3) = 1/5
     [0.4, 0.2, 0.2, 0.2]
     """
-    F = _check_used(F, n_vertices, "limit_masks")
-    return _position_masks(F, n_vertices, creases, "limit_masks")
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
+    _check_used(F, n_vertices, "limit_masks")
+    return _position_masks(sharp_topology(F, n_vertices, "limit_masks", **model), "limit_masks", model)
 
 
-def tangent_masks(F, n_vertices, creases=None):
+def tangent_masks(F, n_vertices, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
     """Return the tangent masks ``d/du``, ``d/dv`` at the control vertices as sparse matrices.
 
     Row ``i`` is the parametric derivative of the limit surface at control
@@ -181,8 +183,8 @@ def tangent_masks(F, n_vertices, creases=None):
         Control faces; every vertex must be used by a face.
     n_vertices : int
         Number of control vertices ``n``.
-    creases : optional
-        As in :func:`mi_loop.subdivision_matrix`.
+    creases, corners, boundary, crease_method : optional
+        The crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -201,8 +203,9 @@ def tangent_masks(F, n_vertices, creases=None):
     >>> bool(abs(Mu.sum(axis=1)).max() < 1e-12 and abs(Mv.sum(axis=1)).max() < 1e-12)   # rows sum to 0
     True
     """
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     _check_used(F, n_vertices, "tangent_masks")
-    return _masks(F, n_vertices, creases, ("u", "v"), "tangent_masks")
+    return _masks(F, n_vertices, model, ("u", "v"), "tangent_masks")
 
 
 def loop_beta(k):
@@ -211,7 +214,7 @@ def loop_beta(k):
     return (0.625 - (0.375 + 0.25 * np.cos(2.0 * np.pi / k)) ** 2) / k
 
 
-def _position_masks(F, n_vertices, creases, func):
+def _position_masks(topo, func, model):
     """Limit-position masks at the control vertices: closed forms, the hierarchy only where none applies.
 
     The limit point of a control vertex is the dominant left eigenvector of
@@ -220,28 +223,29 @@ def _position_masks(F, n_vertices, creases, func):
     - smooth (no sharp incident edge), valence ``k``: ``chi = 1 / (3 / (8 beta(k)) + k)``
       per neighbour, ``1 - k chi`` at the centre;
     - crease (exactly two infinitely sharp incident edges, boundary edges
-      included, and no semi-sharp one; not a boundary vertex of one face):
-      ``1/6, 2/3, 1/6`` along the crease (the cubic B-spline's limit);
-    - corner (three or more infinitely sharp edges, or a boundary vertex of
-      one face under the edge-and-corner rule): the vertex itself.
+      included, no vertex sharpness): ``1/6, 2/3, 1/6`` along the crease (the
+      cubic B-spline's limit);
+    - corner (infinite vertex sharpness, e.g. a boundary vertex of one face
+      under the edge-and-corner rule, or three or more infinitely sharp
+      edges): the vertex itself.
 
-    Darts (one sharp edge) and vertices with a semi-sharp edge have no such
-    form: their rows come from the hierarchy (:func:`_masks`), built only if
-    one exists.
+    Darts (one sharp edge) and vertices with a semi-sharp edge or semi-sharp
+    vertex sharpness have no such form: their rows come from the hierarchy
+    (:func:`_masks`, with the crease keywords ``model``), built only if one
+    exists. ``topo``: the control mesh's :class:`Topology`.
     """
-    n = int(n_vertices)                                 # F: validated by the caller
-    topo = Topology.build(F, n, check_creases(creases, F, n, func))
+    n, F = topo.n, topo.F
     E, sharp = topo.E, topo.sharpness
     ends = np.concatenate([E[:, 0], E[:, 1]])
     other = np.concatenate([E[:, 1], E[:, 0]])
     s = np.concatenate([sharp, sharp])
     valence = np.bincount(ends, minlength=n)
     hard = np.bincount(ends, weights=np.isinf(s), minlength=n)
-    semi = np.bincount(ends, weights=np.isfinite(s) & (s > 0), minlength=n) > 0
-    faces = np.bincount(F.ravel(), minlength=n)
-    corner = ~semi & ((hard >= 3) | ((hard == 2) & (faces == 1)))
+    vs = topo.vertex_sharpness
+    semi = (np.bincount(ends, weights=np.isfinite(s) & (s > 0), minlength=n) > 0) | (np.isfinite(vs) & (vs > 0))
+    corner = ~semi & (np.isinf(vs) | (hard >= 3))
     crease = ~semi & ~corner & (hard == 2)
-    smooth = ~semi & (hard == 0)
+    smooth = ~semi & ~corner & (hard == 0)
     chi = 1.0 / (3.0 / (8.0 * loop_beta(np.maximum(valence, 3))) + valence)
     rows, cols, vals = [], [], []
     on = smooth[ends]                                   # smooth: chi per neighbour, 1 - k chi at the centre
@@ -258,7 +262,7 @@ def _position_masks(F, n_vertices, creases, func):
     M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
     rest = ~(smooth | crease | corner)                  # darts, semi-sharp
     if rest.any():
-        exact = _masks(F, n, creases, (None,), func)[0]
+        exact = _masks(F, n, model, (None,), func)[0]
         keep = sp.diags(rest.astype(np.float64))
         M = sp.diags((~rest).astype(np.float64)) @ M + keep @ exact
     M = M.tocsr()
@@ -266,15 +270,18 @@ def _position_masks(F, n_vertices, creases, func):
     return M
 
 
-def _masks(F, n_vertices, creases, derivatives, func):
-    """Mask matrices ``(n, n)`` at the control vertices, one per entry of ``derivatives``."""
-    h = build_hierarchy(F, n_vertices, creases, func)
+def _masks(F, n_vertices, model, derivatives, func):
+    """Mask matrices ``(n, n)`` at the control vertices, one per entry of ``derivatives``.
+
+    ``model``: the crease keywords of :func:`~mi_loop.subdiv.hierarchy.build_hierarchy`.
+    """
+    h = build_hierarchy(F, n_vertices, func=func, **model)
     face, uv = vertex_samples(h.levels[0].F, n_vertices)
     S = h.composed()
     return [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in level_rows(h, face, uv, derivatives)]
 
 
-def limit_positions(V, F, creases=None):
+def limit_positions(V, F, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
     """Return the limit points of the control vertices.
 
     Parameters
@@ -283,8 +290,8 @@ def limit_positions(V, F, creases=None):
         Control points, every one used by a face.
     F : (m, 3) int numpy array
         Control faces.
-    creases : optional
-        As in :func:`mi_loop.subdivision_matrix`.
+    creases, corners, boundary, crease_method : optional
+        The crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -303,11 +310,12 @@ def limit_positions(V, F, creases=None):
     >>> np.round(mi_loop.limit_positions(V, F)[0], 6)   # beta(3) = 3/16... chi = 1/(2+3)
     array([0.2, 0.2, 0.2])
     """
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     V, F = _checked(V, F, "limit_positions")
-    return _position_masks(F, len(V), creases, "limit_positions") @ V
+    return _position_masks(sharp_topology(F, len(V), "limit_positions", **model), "limit_positions", model) @ V
 
 
-def limit_normals(V, F, creases=None):
+def limit_normals(V, F, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
     """Return unit limit normals at the control vertices.
 
     Parameters
@@ -316,8 +324,8 @@ def limit_normals(V, F, creases=None):
         Control points, every one used by a face.
     F : (m, 3) int numpy array
         Control faces.
-    creases : optional
-        As in :func:`mi_loop.subdivision_matrix`.
+    creases, corners, boundary, crease_method : optional
+        The crease model, as in :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
@@ -337,8 +345,9 @@ def limit_normals(V, F, creases=None):
     >>> np.round(limit_normals(V, F)[0] * np.sqrt(3), 6).tolist()   # outward, along the vertex
     [1.0, 1.0, 1.0]
     """
+    model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     V, F = _checked(V, F, "limit_normals")
-    Mu, Mv = _masks(F, len(V), creases, ("u", "v"), "limit_normals")
+    Mu, Mv = _masks(F, len(V), model, ("u", "v"), "limit_normals")
     N = np.cross(Mu @ V, Mv @ V)
     return N / np.linalg.norm(N, axis=1, keepdims=True)
 

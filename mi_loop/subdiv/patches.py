@@ -169,7 +169,7 @@ def phantom_matrices(P: np.ndarray):
 def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Whether the tail of half-edge ``h`` is a regular corner of the face of ``h``.
 
-    Regular: smooth with valence 6 and no sharp edge, or a crease vertex
+    Regular: smooth with valence 6, no sharp edge and no vertex sharpness, or a crease vertex
     (exactly two sharp edges) whose sector containing the face has 3 faces.
 
     Parameters
@@ -189,7 +189,7 @@ def corner_regular(topo: Topology, kind: np.ndarray, valence: np.ndarray, h: np.
     """
     h = np.asarray(h, dtype=np.int64)
     corner = topo.F.ravel()[h]
-    regular = (topo.sharp_count()[corner] == 0) & (valence[corner] == 6)
+    regular = (kind[corner] == 0) & (topo.sharp_count()[corner] == 0) & (valence[corner] == 6)
     # A crease sector of 3 faces has 4 points and both ends on sharp edges.
     crease = np.flatnonzero(kind[corner] == 1)
     if len(crease):

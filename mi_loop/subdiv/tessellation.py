@@ -10,7 +10,7 @@ from mi_loop.mesh.topology import validate_faces
 __all__ = ["tessellate"]
 
 
-def tessellate(F, level: int = 3):
+def tessellate(F, level: int = 3, faces=None):
     """Split every control face into ``4**level`` triangles in ``(u, v)``.
 
     Points shared by neighbouring faces (control vertices and points on
@@ -22,15 +22,19 @@ def tessellate(F, level: int = 3):
         Control faces.
     level : int
         Every control edge is cut into ``2**level`` segments (0 to 8).
+    faces : (m',) int numpy array, optional
+        Tessellate only these control faces (e.g. all but the holes of
+        boundary ``'none'``); all by default.
 
     Returns
     -------
     face_ids : (k,) int64 numpy array
-        Control face of every tessellation point.
+        Control face of every tessellation point (one of ``faces``).
     uv : (k, 2) float64 numpy array
         Its parameters in that face.
-    F_tess : (m * 4**level, 3) int64 numpy array
-        Triangles over the ``k`` points, oriented like the control faces.
+    F_tess : (m' * 4**level, 3) int64 numpy array
+        Triangles over the ``k`` points, oriented like the control faces,
+        ``4**level`` per face in the order of ``faces``.
 
     Raises
     ------
@@ -79,9 +83,12 @@ def tessellate(F, level: int = 3):
         forward = (a < b)[:, None]
         pos = np.where(forward, s[None, :], R - s[None, :]) - 1
         key[:, edge_local[c]] = n + eid[:, None] * e_len + pos
+    chosen = np.arange(m) if faces is None else np.asarray(faces, dtype=np.int64)
+    key = key[chosen]
     _, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
-    inverse = inverse.reshape(m, -1)
+    inverse = inverse.reshape(len(chosen), -1)
     f_first, g_first = np.divmod(first, len(i))
+    f_first = chosen[f_first]
     uv = np.stack([i[g_first], j[g_first]], 1) / R
     # Triangles of the grid: up (i,j),(i+1,j),(i,j+1) and down (i+1,j),(i+1,j+1),(i,j+1).
     ui, uj = np.meshgrid(np.arange(R), np.arange(R), indexing="ij")

@@ -120,14 +120,10 @@ def test_open_mesh_accepted():
     (np.array([[0, 1, 2]]), "expected creases as an integer array of shape (c, 2), got int64 array of shape (1, 3)"),
     (np.array([[0.0, 1.0]]), "expected creases as an integer array of shape (c, 2), got float64 array of shape (1, 2)"),
     ((np.array([[0, 1]]), np.array([1.0, 2.0])), "expected one sharpness per crease edge (1), got 2 sharpness values"),
-    ((np.array([[0, 1]]), np.array([0.0])), "expected crease sharpness a positive integer or inf, got sharpness 0.0 at "
-                                            "crease 0"),
-    ((np.array([[0, 1], [1, 2]]), np.array([1.0, 1.5])),
-     "expected crease sharpness a positive integer or inf, got sharpness 1.5 at crease 1"),
-    ((np.array([[0, 1]]), np.array([np.nan])), "expected crease sharpness a positive integer or inf, got sharpness nan "
-                                               "at crease 0"),
-    ((np.array([[0, 1]]), np.array([7.0])),
-     "expected finite crease sharpness at most 4 (use inf for sharper), got sharpness 7 at crease 0"),
+    ((np.array([[0, 1]]), np.array([-0.5])), "expected crease sharpness >= 0 (0 smooth, 10 or more or inf infinitely "
+                                             "sharp), got sharpness -0.5 at crease 0"),
+    ((np.array([[0, 1], [1, 2]]), np.array([1.0, np.nan])),
+     "expected crease sharpness >= 0 (0 smooth, 10 or more or inf infinitely sharp), got sharpness nan at crease 1"),
     (np.array([[0, 9]]), "expected creases as pairs of distinct vertex indices in [0, 4), got crease 0 = [0, 9]"),
     (np.array([[0, 1], [1, 1]]),
      "expected creases as pairs of distinct vertex indices in [0, 4), got crease 1 = [1, 1]"),
@@ -135,3 +131,38 @@ def test_open_mesh_accepted():
 def test_creases_rejected(creases, message):
     with pytest.raises(ValueError, match=exactly("subdivision_matrix(): " + message)):
         mi_loop.subdivision_matrix(TET_F, 4, creases)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"corners": np.array([[0, 1]])}, "expected corners as a 1-D integer array of vertex ids, got int64 array of "
+                                      "shape (1, 2)"),
+    ({"corners": np.array([0.0])}, "expected corners as a 1-D integer array of vertex ids, got float64 array of "
+                                   "shape (1,)"),
+    ({"corners": ([0, 1], [2.0])}, "expected one sharpness per corner vertex (2), got 1 sharpness values"),
+    ({"corners": ([0], [-1.0])}, "expected corner sharpness >= 0 (0 smooth, 10 or more or inf infinitely sharp), "
+                                 "got sharpness -1.0 at corner 0"),
+    ({"corners": [2, 4]}, "expected corner vertices in [0, 4), got vertex 4 at corner 1"),
+    ({"boundary": "corner"}, "expected boundary one of 'edge_and_corner', 'edge_only', 'none', got 'corner'"),
+    ({"crease_method": "CHAIKIN"}, "expected crease_method one of 'uniform', 'chaikin', got 'CHAIKIN'"),
+])
+def test_crease_model_rejected(kwargs, message):
+    """Every rejected corner, boundary rule and crease method is named (subdivision and limit alike)."""
+    with pytest.raises(ValueError, match=exactly("subdivision_matrix(): " + message)):
+        mi_loop.subdivision_matrix(TET_F, 4, **kwargs)
+    with pytest.raises(ValueError, match=exactly("limit_matrix(): " + message)):
+        mi_loop.limit_matrix(TET_F, 4, np.array([0]), np.array([[0.2, 0.2]]), **kwargs)
+
+
+def test_sharpness_of_ten_or_more_is_infinite():
+    """OpenSubdiv's SHARPNESS_INFINITE: 10, 12.5 and inf give the same rows; 9.5 does not."""
+    E = np.array([[0, 1]])
+    S_inf, _ = mi_loop.subdivision_matrix(TET_F, 4, (E, [np.inf]))
+    for s in (10.0, 12.5):
+        S, _ = mi_loop.subdivision_matrix(TET_F, 4, (E, [s]))
+        assert abs(S - S_inf).max() == 0
+    S, _ = mi_loop.subdivision_matrix(TET_F, 4, (E, [9.5]))
+    assert abs(S - S_inf).max() == 0          # one step: still a crease, but a semi-sharp one...
+    from mi_loop.subdiv.hierarchy import build_hierarchy
+
+    assert len(build_hierarchy(TET_F, 4, (E, [9.5])).S) == 10    # ...refined until it has decayed
+    assert len(build_hierarchy(TET_F, 4, (E, [10.0])).S) == 1

@@ -1,6 +1,8 @@
 """Tests of the Mitsuba shape plugin ``loop_subdiv`` (mi_loop.render.plugin)."""
 from __future__ import annotations
 
+import re
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -162,10 +164,25 @@ def test_bad_properties_are_reported(blob_file, props, message):
 
 
 def test_parse_creases():
-    np.testing.assert_array_equal(plugin.parse_crease_text("0 1, 1 2;2 3 "), [[0, 1], [1, 2], [2, 3]])
+    E, s = plugin.parse_crease_text("0 1, 1 2 2.5;2 3 inf, 3 4 1e1 ")
+    np.testing.assert_array_equal(E, [[0, 1], [1, 2], [2, 3], [3, 4]])
+    np.testing.assert_array_equal(s, [np.inf, 2.5, np.inf, 10.0])
     assert plugin.parse_crease_text("") is None
-    with pytest.raises(ValueError, match="creases entry 0 is '0 x'"):
+    with pytest.raises(ValueError, match=re.escape("loop_subdiv: creases entry 0 is '0 x', expected two vertex "
+                                                   "indices and an optional sharpness such as '0 1' or '0 1 2.5'")):
         plugin.parse_crease_text("0 x")
+    with pytest.raises(ValueError, match="creases entry 1 is '1 2 -3'"):
+        plugin.parse_crease_text("0 1, 1 2 -3")
+
+
+def test_parse_corners():
+    ids, s = plugin.parse_corner_text("4, 7 1.5; 9 .25")
+    np.testing.assert_array_equal(ids, [4, 7, 9])
+    np.testing.assert_array_equal(s, [np.inf, 1.5, 0.25])
+    assert plugin.parse_corner_text(" ") is None
+    with pytest.raises(ValueError, match=re.escape("loop_subdiv: corners entry 1 is '1 2 3', expected a vertex "
+                                                   "index and an optional sharpness such as '4' or '4 1.5'")):
+        plugin.parse_corner_text("0, 1 2 3")
 
 
 def test_render_gradient_matches_finite_differences(blob, jit_variant):

@@ -480,7 +480,7 @@ def test_closed_form_vertex_masks_equal_the_hierarchys_rows(name):
     mesh = meshes.MESHES[name]
     n = len(mesh.V)
     fast = mi_loop.limit_masks(mesh.F, n, creases=mesh.creases).toarray()
-    slow = _masks(mesh.F, n, mesh.creases, (None,), "test")[0].toarray()
+    slow = _masks(mesh.F, n, {"creases": mesh.creases}, (None,), "test")[0].toarray()
     np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-14, err_msg=name)
     face_ids, uv = vertex_samples(mesh.F, n)
     mixed = mi_loop.limit_matrix(mesh.F, n, np.r_[face_ids, 0], np.r_[uv, [[0.25, 0.25]]],
