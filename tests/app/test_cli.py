@@ -67,6 +67,21 @@ def test_render_rejects_bad_creases(tmp_path, capsys):
     assert "creases entry 1 is 'oops'" in line
 
 
+def test_render_rejects_bad_corners(tmp_path, capsys):
+    io.write_ply(tmp_path / "c.ply", *datasets.blob())
+    line = one_line_error(capsys, ["render", str(tmp_path / "c.ply"), "-o", str(tmp_path / "o.png"),
+                                   "--corners", "3, 4 -1"])
+    assert "corners entry 1 is '4 -1'" in line
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_render_rejects_unknown_boundary_rule(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["render", "c.ply", "-o", str(tmp_path / "o.png"), "--boundary", "corner"])
+    assert exit_info.value.code == 2
+    assert "argument --boundary: invalid choice: 'corner'" in capsys.readouterr().err
+
+
 def test_render_rejects_invalid_control_mesh(tmp_path, capsys):
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
     io.write_ply(tmp_path / "bad.ply", V, np.array([[0, 1, 1]]))        # degenerate face

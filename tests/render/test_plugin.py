@@ -30,10 +30,10 @@ def blob_file(tmp_path_factory, blob):
     return path
 
 
-def reference(V, F, level, creases=None):
+def reference(V, F, level, creases=None, faces=None, **model):
     """Limit points, unit limit normals and triangles of the tessellation, in float64 with SciPy."""
-    face_ids, uv, F_tess = mi_loop.tessellate(F, level)
-    W, Wu, Wv = (limit_matrix(F, len(V), face_ids, uv, creases, d) for d in (None, "u", "v"))
+    face_ids, uv, F_tess = mi_loop.tessellate(F, level, faces)
+    W, Wu, Wv = (limit_matrix(F, len(V), face_ids, uv, creases, d, **model) for d in (None, "u", "v"))
     N = np.cross(Wu @ V, Wv @ V)
     return W @ V, N / np.linalg.norm(N, axis=1, keepdims=True), np.asarray(F_tess)
 
@@ -89,6 +89,42 @@ def test_crease_scene_loads_with_creases(scenes_dir):
     assert_matches_limit(shape, V, F, 1, creases=creases)
     P_smooth, _, _ = reference(V, F, 1)
     assert np.abs(plugin.mesh_arrays(shape)[0] - P_smooth).max() > 1e-3   # the crease changes the surface
+
+
+def test_crease_model_properties(blob, blob_file):
+    """Sharpness in ``creases``, ``corners``, ``crease_method``: the limit surface of the same crease model."""
+    V, F = blob
+    E = np.array([F[0, :2], F[0, 1:], F[5, :2]])
+    shape = mi.load_dict({"type": "loop_subdiv", "filename": str(blob_file), "level": 1,
+                          "creases": f"{E[0, 0]} {E[0, 1]} 2.5, {E[1, 0]} {E[1, 1]} 1.5; {E[2, 0]} {E[2, 1]}",
+                          "corners": f"{F[9, 0]} 1.5, {F[12, 1]}", "crease_method": "chaikin"})
+    model = dict(creases=(E, [2.5, 1.5, np.inf]), corners=([F[9, 0], F[12, 1]], [1.5, np.inf]),
+                 crease_method="chaikin")
+    P, N, F_tess = plugin.mesh_arrays(shape)
+    P_ref, N_ref, F_ref = reference(V, F, 1, **model)
+    np.testing.assert_array_equal(F_tess, F_ref)
+    np.testing.assert_allclose(P, P_ref, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(N, N_ref, rtol=0, atol=2e-5)
+    P_uniform, _, _ = reference(V, F, 1, **{**model, "crease_method": "uniform"})
+    assert np.abs(P - P_uniform).max() > 1e-4            # two semi-sharp edges meet at F[0, 1]: Chaikin matters
+
+
+def test_boundary_none_leaves_the_holes_out(jit_variant):
+    from mi_loop.mesh.topology import sharp_topology
+
+    from meshes import grid
+
+    mesh = grid(6, 5)
+    hole = sharp_topology(mesh.F, len(mesh.V), "test", boundary="none").hole
+    shape = plugin.create(mesh.V, mesh.F, level=1, boundary="none")
+    assert shape.face_count() == 4 * int((~hole).sum()) < 4 * len(mesh.F)
+    P, N, F_tess = plugin.mesh_arrays(shape)
+    P_ref, N_ref, F_ref = reference(mesh.V, mesh.F, 1, faces=np.flatnonzero(~hole), boundary="none")
+    np.testing.assert_array_equal(F_tess, F_ref)
+    np.testing.assert_allclose(P, P_ref, rtol=0, atol=2e-6)
+    with pytest.raises(ValueError, match=re.escape("loop_subdiv: every one of the 10 control faces is a hole under "
+                                                   "boundary 'none'")):
+        plugin.create(mesh.V[:12], mesh.F[:10], level=1, boundary="none")     # one strip: all on the boundary
 
 
 def test_xml_filename_is_relative_to_the_xml(tmp_path, blob):
@@ -156,6 +192,12 @@ def test_update_rejects_wrong_length(blob):
     ({"filename": "/nonexistent/c.ply"}, "no such file"),
     ({"filename": "FILE", "level": -1}, "expected an integer level >= 0, got -1"),
     ({"filename": "FILE", "creases": "0 1, 2"}, "creases entry 1 is '2'"),
+    ({"filename": "FILE", "corners": "0 x"}, "corners entry 0 is '0 x'"),
+    ({"filename": "FILE", "corners": "99"}, re.escape("loop_subdiv(): expected corner vertices in [0, 42), "
+                                                      "got vertex 99 at corner 0")),
+    ({"filename": "FILE", "boundary": "corner"}, re.escape("loop_subdiv(): expected boundary one of "
+                                                           "'edge_and_corner', 'edge_only', 'none', got 'corner'")),
+    ({"filename": "FILE", "crease_method": "x"}, "expected crease_method one of 'uniform', 'chaikin', got 'x'"),
 ])
 def test_bad_properties_are_reported(blob_file, props, message):
     props = {k: (str(blob_file) if v == "FILE" else v) for k, v in props.items()}

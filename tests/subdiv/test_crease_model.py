@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import mi_loop
+
 from meshes import grid_faces
 
 # A 5 x 5 lattice: vertex i + 5 j; 12 = (2, 2) is interior, valence 6; 0 is a corner of one face.
