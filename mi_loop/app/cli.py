@@ -137,7 +137,10 @@ def _render_file(args, log) -> None:
     check_variant(args.variant, "render")
     io.ensure_writable_dir(args.output.parent)
     V, F = io.read_mesh(args.control)
-    log.say(f"control mesh '{args.control}': {len(V)} vertices, {len(F)} faces")
+    if model["creases"] is None:
+        model["creases"] = io.read_creases(args.control)      # e.g. a control.ply written by mi-loop fit
+    n_creases = 0 if model["creases"] is None else len(model["creases"][0])
+    log.say(f"control mesh '{args.control}': {len(V)} vertices, {len(F)} faces, {n_creases} crease edges")
     image, _ = _render(V, F, args, model, log)
     log.wrote(io.write_png(args.output, image))
 

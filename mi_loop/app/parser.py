@@ -411,7 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("control", type=Path, help="control mesh (PLY, OBJ or OFF)")
     render.add_argument("-o", "--output", required=True, type=Path, help="PNG file to write")
     render.add_argument("--creases", default="",
-                        help="sharp edges as vertex pairs, optional sharpness (default inf), e.g. '0 1, 1 2 2.5'")
+                        help="sharp edges as vertex pairs, optional sharpness (default inf), e.g. '0 1, 1 2 2.5'; "
+                             "default: the creases of a PLY control mesh (its edge element)")
     render.add_argument("--corners", default="",
                         help="sharp vertices with an optional sharpness (default inf), e.g. '4, 7 1.5'")
     render.add_argument("--boundary", choices=["edge_and_corner", "edge_only", "none"], default="edge_and_corner",

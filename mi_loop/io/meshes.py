@@ -19,7 +19,8 @@ from mi_loop.io.formats import MESH_SUFFIXES, fan_triangulate, read_polygons
 from mi_loop.io.ply import read_ply
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
-__all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_mesh", "read_vertex_colors", "write_ply"]
+__all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_creases", "read_mesh", "read_vertex_colors",
+           "write_ply"]
 
 #: Float32 linear vertex colours in the PLY files mi_loop writes (next to 8-bit sRGB ``red green blue``).
 _ALBEDO = ("albedo_r", "albedo_g", "albedo_b")
@@ -125,7 +126,7 @@ def _read(path, func: str) -> ControlMesh:
     return ControlMesh(V, F, n_split)
 
 
-def write_ply(path, V, F, normals=None, colors=None) -> Path:
+def write_ply(path, V, F, normals=None, colors=None, creases=None) -> Path:
     """Write a triangle mesh as a binary little-endian PLY file, atomically.
 
     Parameters
@@ -143,6 +144,11 @@ def write_ply(path, V, F, normals=None, colors=None) -> Path:
         sRGB ``red green blue`` (what mesh viewers show) and as float32 linear
         ``albedo_r albedo_g albedo_b`` (exact; :func:`read_vertex_colors`
         prefers it).
+    creases : tuple ``((c, 2) int, (c,) float)`` or (c, 2) int array-like, optional
+        Crease edges and their sharpness (``inf`` when only edges are given),
+        stored as an ``edge`` element ``vertex1 vertex2 crease`` (float32
+        sharpness, the convention of mesh tools that read creases from PLY);
+        :func:`read_creases` reads them back.
 
     Returns
     -------
@@ -152,7 +158,7 @@ def write_ply(path, V, F, normals=None, colors=None) -> Path:
     Raises
     ------
     ValueError
-        If the arrays have the wrong shape or face indices are out of range.
+        If the arrays have the wrong shape or face or crease indices are out of range.
     """
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F)
@@ -180,7 +186,22 @@ def write_ply(path, V, F, normals=None, colors=None) -> Path:
         fields += [(c, "u1") for c in ("red", "green", "blue")] + [(c, "<f4") for c in _ALBEDO]
         header += [f"property uchar {c}" for c in ("red", "green", "blue")]
         header += [f"property float {c}" for c in _ALBEDO]
-    header += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
+    header += [f"element face {len(F)}", "property list uchar int vertex_indices"]
+    edges = None
+    if creases is not None:
+        E, sharp = creases if isinstance(creases, tuple) else (creases, None)
+        E = np.asarray(E)
+        sharp = np.full(len(E), np.inf) if sharp is None else np.asarray(sharp, dtype=np.float64)
+        if E.ndim != 2 or E.shape[1] != 2 or not np.issubdtype(E.dtype, np.integer) or sharp.shape != (len(E),):
+            fail("write_ply", "creases as (c, 2) integer vertex pairs with one sharpness each",
+                 f"{E.dtype} array of shape {E.shape} and {sharp.shape[0] if sharp.ndim else 0} sharpness values")
+        if E.size and (E.min() < 0 or E.max() >= len(V)):
+            bad = int(np.flatnonzero((E < 0).any(1) | (E >= len(V)).any(1))[0])
+            fail("write_ply", f"crease vertices in [0, {len(V)})", f"crease {bad} = {E[bad].tolist()}")
+        edges = np.empty(len(E), dtype=[("vertex1", "<i4"), ("vertex2", "<i4"), ("crease", "<f4")])
+        edges["vertex1"], edges["vertex2"], edges["crease"] = E[:, 0], E[:, 1], sharp
+        header += [f"element edge {len(E)}", "property int vertex1", "property int vertex2", "property float crease"]
+    header.append("end_header")
 
     vertices = np.empty(len(V), dtype=fields)
     for i, axis in enumerate("xyz"):
@@ -200,7 +221,51 @@ def write_ply(path, V, F, normals=None, colors=None) -> Path:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(vertices.tobytes())
         f.write(faces.tobytes())
+        if edges is not None:
+            f.write(edges.tobytes())
     return path
+
+
+def read_creases(path):
+    """Read crease edges from a PLY file's ``edge`` element, or None if it has none (or is not a PLY).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A mesh file (only ``.ply`` files carry creases here).
+
+    Returns
+    -------
+    tuple ``((c, 2) int64 NumPy array, (c,) float64 NumPy array)`` or None
+        Edges ``vertex1 vertex2`` and their sharpness: the ``crease``
+        property (written by :func:`write_ply`), else infinitely sharp.
+
+    Raises
+    ------
+    ValueError
+        If the PLY file cannot be parsed, or its edge element lacks ``vertex1`` / ``vertex2``.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = write_ply(os.path.join(d, "c.ply"), np.eye(3), [[0, 1, 2]], creases=([[0, 1]], [2.5]))
+    ...     E, s = read_creases(p)
+    >>> E.tolist(), s.tolist()
+    ([[0, 1]], [2.5])
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        return None
+    edge = read_ply(path, "read_creases").get("edge")
+    if not edge:
+        return None
+    if "vertex1" not in edge or "vertex2" not in edge:
+        fail("read_creases", f"an edge element with vertex1 and vertex2 in '{path}'",
+             f"properties {', '.join(edge) or 'none'}")
+    E = np.stack([np.asarray(edge["vertex1"], dtype=np.int64), np.asarray(edge["vertex2"], dtype=np.int64)], 1)
+    sharp = np.asarray(edge["crease"], dtype=np.float64) if "crease" in edge else np.full(len(E), np.inf)
+    return E, sharp
 
 
 def read_vertex_colors(path) -> np.ndarray | None:

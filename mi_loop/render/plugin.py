@@ -225,6 +225,8 @@ def _shape_class(variant: str):
             (str, see :func:`mi_loop.subdivision_matrix`), ``to_world``
             (transform), plus the usual shape children (bsdf, emitter, ...).
             Under ``boundary = 'none'`` the holes are left out of the mesh.
+            Without a ``creases`` property, the creases of a PLY control
+            mesh's ``edge`` element are used (:func:`mi_loop.io.read_creases`).
         control_mesh : ((n, 3) float, (m, 3) int) NumPy arrays, optional
             Control vertices and faces given directly instead of ``filename``.
         model : dict, optional
@@ -255,6 +257,8 @@ def _shape_class(variant: str):
                 control_mesh = io.read_mesh(path)
                 if albedo is None:
                     albedo = io.read_vertex_colors(path)
+                if "creases" not in props and model.get("creases") is None:
+                    model["creases"] = io.read_creases(path)      # a control.ply written by mi-loop fit
             V, F = (np.asarray(a) for a in control_mesh)
             validate_mesh(V, F)
             albedo = _check_albedo(albedo, len(V))

@@ -42,6 +42,35 @@ def test_ply_stores_normals(tmp_path, blob):
     assert len(body) == len(V) * 36 + len(F) * 13
 
 
+def test_ply_creases_round_trip(tmp_path, blob):
+    """Crease edges and their sharpness (inf included) come back; the mesh itself is unchanged."""
+    V, F = blob
+    E = np.array([F[0, :2], F[3, 1:], F[7, [0, 2]]])
+    io.write_ply(tmp_path / "c.ply", V, F, creases=(E, [2.5, np.inf, 0.25]))
+    E2, s2 = io.read_creases(tmp_path / "c.ply")
+    np.testing.assert_array_equal(E2, E)
+    np.testing.assert_array_equal(s2, [2.5, np.inf, 0.25])
+    V2, F2 = io.read_mesh(tmp_path / "c.ply")
+    np.testing.assert_array_equal(V2, V)
+    np.testing.assert_array_equal(F2, F)
+    io.write_ply(tmp_path / "e.ply", V, F, creases=E[:1])          # edges only: infinitely sharp
+    assert io.read_creases(tmp_path / "e.ply")[1].tolist() == [np.inf]
+    io.write_ply(tmp_path / "p.ply", V, F)
+    assert io.read_creases(tmp_path / "p.ply") is None
+
+
+def test_write_ply_rejects_bad_creases(tmp_path, blob):
+    V, F = blob
+    with pytest.raises(ValueError, match=exactly(f"write_ply(): expected crease vertices in [0, {len(V)}), "
+                                                 f"got crease 1 = [0, {len(V)}]")):
+        io.write_ply(tmp_path / "x.ply", V, F, creases=np.array([[0, 1], [0, len(V)]]))
+    with pytest.raises(ValueError, match=exactly("write_ply(): expected creases as (c, 2) integer vertex pairs with "
+                                                 "one sharpness each, got int64 array of shape (2, 2) and 1 "
+                                                 "sharpness values")):
+        io.write_ply(tmp_path / "x.ply", V, F, creases=(np.array([[0, 1], [1, 2]]), [1.0]))
+    assert not any(tmp_path.iterdir())
+
+
 def test_obj_and_off_keep_vertex_order(tmp_path):
     V = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 0, 0]], dtype=float)
     F = np.array([[3, 2, 1], [3, 1, 0], [3, 0, 2], [0, 1, 2]])

@@ -109,6 +109,20 @@ def test_crease_model_properties(blob, blob_file):
     assert np.abs(P - P_uniform).max() > 1e-4            # two semi-sharp edges meet at F[0, 1]: Chaikin matters
 
 
+def test_creases_of_a_ply_control_mesh_are_used(tmp_path, blob):
+    """A control.ply with an edge element (as mi-loop fit writes it) renders with its creases;
+    the ``creases`` property overrides them."""
+    V, F = blob
+    E = np.array([F[0, :2], F[0, 1:]])
+    io.write_ply(tmp_path / "c.ply", V, F, creases=(E, [np.inf, 1.5]))
+    shape = mi.load_dict({"type": "loop_subdiv", "filename": str(tmp_path / "c.ply"), "level": 1})
+    P_ref, _, _ = reference(V, F, 1, creases=(E, [np.inf, 1.5]))
+    np.testing.assert_allclose(plugin.mesh_arrays(shape)[0], P_ref, rtol=0, atol=2e-6)
+    plain = mi.load_dict({"type": "loop_subdiv", "filename": str(tmp_path / "c.ply"), "level": 1, "creases": ""})
+    np.testing.assert_allclose(plugin.mesh_arrays(plain)[0], reference(V, F, 1)[0], rtol=0, atol=2e-6)
+    assert np.abs(P_ref - reference(V, F, 1)[0]).max() > 1e-3
+
+
 def test_boundary_none_leaves_the_holes_out(jit_variant):
     from mi_loop.mesh.topology import sharp_topology
 
