@@ -61,7 +61,7 @@ class _Padded:
         out = []
         for d in names:
             terms = self.w[d] * gathered
-            out.append(cls(*(dr.block_sum(terms[c], self.width, mode="symbolic") for c in range(3))))
+            out.append(cls(*(dr.block_sum(terms[c], self.width, mode="evaluated") for c in range(3))))
         return out
 
 

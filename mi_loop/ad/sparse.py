@@ -7,7 +7,10 @@ an optimiser does with them) differ in their last bits, and a fit that runs
 for hundreds of iterations, or a sequence fitted frame after frame, amplifies
 that into visible differences. Measured on Dr.Jit 1.5.0 (2 threads): every
 ``dr.scatter_reduce`` mode (Auto, Direct, Expand, Local) gives different sums
-from run to run; ``dr.block_sum`` over gathered values is bit-identical.
+from run to run; ``dr.block_sum(..., mode="evaluated")`` over gathered values
+is bit-identical. (``mode="symbolic"`` is a scatter-reduce too: it changed one
+gradient entry in the last bit in about one run in six of
+``tests/ad/test_sparse.py``, and is not used.)
 
 :class:`IndexMap` is a fixed index table ``y[t] = x[index[t]]`` whose reverse
 pass is the transposed table applied by :class:`SegmentSum`: the adjoints of
@@ -127,7 +130,7 @@ class SegmentSum:
             return dr.zeros(type(v), self.n)
         for positions, active, width in self._levels:
             dr.eval(v)   # all components of the source in one kernel (a gather would evaluate them one by one)
-            v = dr.block_sum(dr.gather(type(v), v, positions, active), width, mode="symbolic")
+            v = dr.block_sum(dr.gather(type(v), v, positions, active), width, mode="evaluated")
         return v
 
 

@@ -99,7 +99,7 @@ def test_separate_control_point_views_still_add_up():
 
 
 def test_limit_operator_backward_is_bit_identical():
-    """Positions, d/du and d/dv at 40,960 samples of an icosphere(2) cage, reverse pass 4 times."""
+    """Positions, d/du and d/dv at 40,960 samples of an icosphere(2) cage, reverse pass 12 times."""
     V, F = icosphere(2)
     fid, uv, _ = tessellate(F, 3)
     op = mi_loop.LimitOperator(F, len(V), fid, uv)
@@ -112,7 +112,7 @@ def test_limit_operator_backward_is_bit_identical():
         dr.backward(dr.sum(dr.dot(P, w[0]) + dr.dot(du, w[1]) + dr.dot(dv, w[2])))
         return np.array(dr.grad(x))
 
-    g = [grad() for _ in range(4)]
+    g = [grad() for _ in range(12)]     # the atomic block sums this replaced differed about one run in six
     for other in g[1:]:
         np.testing.assert_array_equal(other, g[0])
     M = [op.matrix(d) for d in (None, "u", "v")]
