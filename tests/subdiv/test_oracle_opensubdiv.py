@@ -129,8 +129,10 @@ def oracle_hierarchy(mesh, n_levels: int, **kw):
 
 
 def n_levels_of(kw) -> int:
-    """At least two steps, and enough for every semi-sharp tag to expire."""
-    return max(2, oracle.levels_to_expire(kw.get("creases"), kw.get("corners")))
+    """At least two steps, and enough for every semi-sharp tag to expire (at most 5: the cases are small)."""
+    L = max(2, oracle.levels_to_expire(kw.get("creases"), kw.get("corners")))
+    assert L <= 5, f"a case needs {L} levels: is a sharpness >= 10 not taken as infinite?"
+    return L
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -178,6 +180,14 @@ def test_comparison_tells_neighbouring_rules_apart(name, wrong):
     Q = oracle_hierarchy(mesh, L, **{**kw, **wrong}).S_total[-1] @ mesh.V
     miss = np.linalg.norm(P[:, None, :] - Q[None, :, :], axis=2).min(axis=1).max()
     assert miss > 1e-4 * np.ptp(mesh.V, axis=0).max()
+
+
+def test_sharpness_of_ten_or_more_is_infinite():
+    """SHARPNESS_INFINITE = 10: edge and vertex sharpness >= 10 never decay; below 10 they do."""
+    creases = oracle.parse_creases((PATH[:3], [10.0, 12.0, 9.75]))
+    assert [creases[oracle.edge_key(*e)] for e in PATH[:3]] == [INF, INF, 9.75]
+    assert oracle.parse_corners(([0, 1], [10.0, 0.5])) == {0: INF, 1: 0.5}
+    assert oracle.levels_to_expire((PATH[:2], [10.0, 2.25]), ([0], [12.0])) == 3
 
 
 def test_hole_faces_under_boundary_none():
