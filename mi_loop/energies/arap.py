@@ -2,7 +2,7 @@
 
 Topology, cotangent weights and rest edge vectors are computed once in NumPy;
 the best rotations come in closed form every iteration (:mod:`.rotations`:
-Horn's quaternion, vectorised NumPy, no SVD); the energy
+Horn's quaternion as one compiled float64 kernel, no SVD); the energy
 itself is a Dr.Jit expression of the control points with fixed-size device
 arrays, so AD gives ``dE/dV`` and the kernels are reused.
 """
@@ -14,16 +14,12 @@ import scipy.sparse as sp
 from mi_loop.ad.control import ControlPoints
 from mi_loop.ad.sparse import IndexMap
 from mi_loop.ad.upload import upload_float, upload_vec
-from mi_loop.energies.rotations import best_rotations
+from mi_loop.energies.rotations import RotationSolver
 from mi_loop.errors import fail
 from mi_loop.mesh.checks import check_points
 from mi_loop.mesh.topology import validate_faces
 
 __all__ = ["ARAP", "cotangent_weights"]
-
-#: Above this valence the covariances are gathered by a sparse product instead of a padded table.
-MAX_PADDED_VALENCE = 16
-
 
 def cotangent_weights(V, F, min_weight: float = 1e-3):
     """Undirected edges and their cotangent weights ``w_ij = (cot a_ij + cot b_ij) / 2``.
@@ -109,7 +105,7 @@ class ARAP:
     ``R_i = W diag(1, 1, det(W U^T)) U^T`` (Umeyama 1991; the sign flip on the
     smallest singular value turns a reflection into the best rotation). It is
     computed without the SVD, as Horn's unit quaternion (the same rotation,
-    proper by construction; :func:`~mi_loop.energies.rotations.best_rotations`).
+    proper by construction; :class:`~mi_loop.energies.rotations.RotationSolver`).
 
     Why holding ``R`` fixed gives the exact gradient: with
     ``R*(V) = argmin_{R in SO(3)^n} E(V, R)``, the regulariser is
@@ -153,24 +149,13 @@ class ARAP:
         self.J = np.concatenate([E[:, 1], E[:, 0]])
         self.w = np.concatenate([w, w])
         self.e_rest = V[self.I] - V[self.J]  # (2e, 3) rest edges e_ij
-        # S_i = sum_j w_ij e_ij e'_ij^T: one batched 3 x k by k x 3 product over each vertex's k neighbours
-        # (padded with the vertex itself: a zero edge), or one sparse product over the directed edges where
-        # a vertex of high valence would make the padding large.
-        order = np.argsort(self.I, kind="stable")
-        counts = np.bincount(self.I, minlength=self.n)
-        k = int(counts.max()) if len(counts) else 0
-        if k <= MAX_PADDED_VALENCE:
-            centre = self.I[order]
-            slot = np.arange(len(centre)) - np.repeat(np.cumsum(counts) - counts, counts)
-            self._neighbours = np.tile(np.arange(self.n)[:, None], (1, k))
-            self._neighbours[centre, slot] = self.J[order]
-            rest = np.zeros((self.n, k, 3))
-            rest[centre, slot] = (self.w[:, None] * self.e_rest)[order]
-            self._rest_t = np.ascontiguousarray(np.swapaxes(rest, 1, 2))   # (n, 3, k)
-            self._gather = None
-        else:
-            self._gather = sp.csr_matrix((self.w, (self.I, np.arange(len(self.I)))),
-                                         shape=(self.n, len(self.I)))
+        # S_i = sum_j w_ij e_ij e'_ij^T = sum_j w_ij e_ij (V_i - V_j)^T: one sparse (3n, n) product K V,
+        # row 3 i + a holding w_ij e_ij[a] at column i and -w_ij e_ij[a] at column j
+        we = (self.w[:, None] * self.e_rest).ravel()
+        rows = (3 * self.I[:, None] + np.arange(3)).ravel()
+        cols = np.r_[np.repeat(self.I, 3), np.repeat(self.J, 3)]
+        self._K = sp.csr_matrix((np.r_[we, -we], (np.r_[rows, rows], cols)), shape=(3 * self.n, self.n))
+        self._solve = RotationSolver()
         self._Id = IndexMap(self.I, self.n)
         self._Jd = IndexMap(self.J, self.n)
         self._wd = upload_float(self.w)
@@ -187,8 +172,8 @@ class ARAP:
         V = np.asarray(V, dtype=np.float64)
         if V.shape != (self.n, 3):
             raise ValueError(f"ARAP.{func}(): expected ({self.n}, 3) control points, got shape {V.shape}")
-        bad = np.flatnonzero(~np.isfinite(V).all(1))
-        if len(bad):
+        if not np.isfinite(V).all():
+            bad = np.flatnonzero(~np.isfinite(V).all(1))
             raise ValueError(f"ARAP.{func}(): expected finite control points, got point {bad[0]} = "
                              f"{V[bad[0]].tolist()}")
         return V
@@ -207,14 +192,11 @@ class ARAP:
             Proper rotations (``det = +1``); the identity where a vertex has no edges.
         """
         V = self._numpy_points(V, "rotations")
-        return best_rotations(self.covariances(V))
+        return self._solve(self.covariances(V))
 
     def covariances(self, V) -> np.ndarray:
         """``S_i = sum_j w_ij e_ij e'_ij^T`` for current control points ``V`` ((n, 3) NumPy): (n, 3, 3)."""
-        if self._gather is None:
-            return self._rest_t @ (V[:, None, :] - V[self._neighbours])
-        e_cur = V[self.I] - V[self.J]
-        return (self._gather @ (self.e_rest[:, :, None] * e_cur[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
+        return (self._K @ V).reshape(self.n, 3, 3)
 
     def energy(self, x, R=None):
         """ARAP energy ``E(V, R)`` with the rotations held constant.

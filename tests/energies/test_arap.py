@@ -195,26 +195,20 @@ def test_energy_and_rotation_errors():
         arap.rotations(mesh.V[:5])
 
 
-def test_padded_and_sparse_covariance_gathers_agree_and_rotations_match_the_svd(monkeypatch):
-    """Both ways of summing S_i (padded neighbour table; sparse product above MAX_PADDED_VALENCE)."""
-    import mi_loop.energies.arap as arap_module
+def test_covariances_by_hand_and_rotations_match_the_svd():
+    """S_i from the sparse product K V against the sum over the directed edges, vertex by vertex."""
     from mi_loop.datasets import icosphere
     from mi_loop.energies.rotations import svd_rotations
 
     V, F = icosphere(2)
     V2 = V + 0.05 * np.random.default_rng(0).normal(size=V.shape)
-    padded = ARAP(V, F)
-    monkeypatch.setattr(arap_module, "MAX_PADDED_VALENCE", 3)
-    sparse = ARAP(V, F)
-    assert padded._gather is None and sparse._gather is not None
-    S = padded.covariances(V2)
-    # the same float64 sums in another order: measured 5.6e-17 at |S| <= 0.19
-    np.testing.assert_allclose(S, sparse.covariances(V2), rtol=1e-12, atol=1e-15)
-    # by hand at vertex 0: sum over its directed edges of w e_rest e_cur^T (measured 3.5e-18)
-    mine = (padded.I == 0)
-    e_cur = V2[padded.I[mine]] - V2[padded.J[mine]]
-    np.testing.assert_allclose(S[0], np.einsum("k,ka,kb->ab", padded.w[mine], padded.e_rest[mine], e_cur),
-                               atol=1e-15)
-    # measured 6e-15 here; 1e-10 is the bound of tests/energies/test_rotations.py, whose worst case
+    arap = ARAP(V, F)
+    S = arap.covariances(V2)
+    e_cur = V2[arap.I] - V2[arap.J]
+    by_hand = np.zeros_like(S)
+    np.add.at(by_hand, arap.I, arap.w[:, None, None] * arap.e_rest[:, :, None] * e_cur[:, None, :])
+    # the same float64 sums in another order: |S| <= 0.19
+    np.testing.assert_allclose(S, by_hand, rtol=1e-12, atol=1e-15)
+    # 1e-10 is the bound of tests/energies/test_rotations.py, whose worst case
     # (random covariances with reflections) measured 2.3e-13, the error growing as eps / eigen-gap
-    np.testing.assert_allclose(padded.rotations(V2), svd_rotations(S), atol=1e-10)
+    np.testing.assert_allclose(arap.rotations(V2), svd_rotations(S), atol=1e-10)
