@@ -228,14 +228,19 @@ def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_ro
 
     r = fit(P, N, n_vertices=1000, **(FIT_OPTIONS | kw))
     s = fit_summary(r)
-    note = (f"{s['n_vertices']} cv, {s['iterations']} it, {r.timings['total']:.1f} s, "
-            f"alpha {r.params['alpha']:g}, h0 {s['h0']:.4g}")
+    note = (f"{s['n_vertices']} cv, {r.params.get('n_creases', 0)} crease edges, {s['iterations']} it, "
+            f"{r.timings['total']:.1f} s, alpha {r.params['alpha']:g}, h0 {s['h0']:.4g}")
     if template_row:
-        V_lim, F_lim = limit_surface(r.V_template, r.F, 3, cache)
+        from mi_loop.subdiv.masks import limit_mesh
+
+        V_lim, F_lim, _ = limit_mesh(r.V_template, r.F, 3, creases=r.creases)
         m0, row = nps_row(f"{label}: template (no fit)", V_lim, F_lim, target, ref)
         rows.append(row + ([""] if ref is None else []) + [""])
         out.append({"part": "nps", "case": f"{label} template", **m0})
-    V_lim, F_lim = limit_surface(r.V, r.F, 3, cache)
+    if r.creases is not None:                    # the cached operator has no creases
+        V_lim, F_lim, _ = r.limit_mesh(3)
+    else:
+        V_lim, F_lim = limit_surface(r.V, r.F, 3, cache)
     m, row = nps_row(label, V_lim, F_lim, target, ref)
     if visible:                                  # input points to the fit, same units as P2S / HD
         from mi_loop.mesh.sampling import surface_distances
@@ -258,8 +263,10 @@ def bench_nps(args, out: list) -> None:
         target = read_mesh(path)
         P, N, _ = load_oriented_points(path)
         rows.append([f"{name}: NPS Table 1", f3(p2s), f3(hd), f"{nae:.2f}", "", "published"])
-        fit_and_measure(P, N, target, cache, f"{name}: mi_loop defaults", rows, out, template_row=True)
-        fit_and_measure(P, N, target, cache, f"{name}: level1", rows, out, samples="level1")
+        fit_and_measure(P, N, target, cache, f"{name}: mi_loop defaults (features from the mesh)", rows, out,
+                        template_row=True, mesh=target)
+        fit_and_measure(P, N, target, cache, f"{name}: --features off", rows, out, template_row=True,
+                        mesh=target, features="off")
         for a in args.alpha:
             fit_and_measure(P, N, target, cache, f"{name}: level1, alpha {a:g}", rows, out,
                             samples="level1", alpha=a)

@@ -9,6 +9,8 @@ only prefilters candidate triangles (no approximation).
   diagonal, both directions (thesis Fig. 6.9 convention).
 - :func:`nps_metrics`: the Neural Parametric Surfaces protocol (P2S, HD, NAE).
 - :func:`flipped_fraction`: area of a surface facing against its target (folds).
+- :func:`self_intersections`: the triangles of a mesh that cross another of its
+  triangles (pymeshlab), e.g. where a fold or two fused parts pass through each other.
 - :func:`attach` and :func:`drift`: correspondence drift against a target
   sequence in correspondence (the same barycentric point followed over time).
 """
@@ -23,7 +25,8 @@ from mi_loop.mesh.checks import check_points, check_triangles
 from mi_loop.mesh.geometry import face_normals
 from mi_loop.mesh.sampling import closest_points, sample_surface, surface_distances
 
-__all__ = ["Attachment", "attach", "drift", "flipped_fraction", "nps_metrics", "two_sided"]
+__all__ = ["Attachment", "attach", "drift", "flipped_fraction", "nps_metrics", "self_intersections",
+           "two_sided"]
 
 
 def _stats(d, scale):
@@ -217,6 +220,50 @@ def flipped_fraction(V_fit, F_fit, target, F_target=None, N_target=None, radius:
         fail("flipped_fraction", "target faces F_target or target normals N_target", "neither")
     total = area.sum()
     return float(area[flipped].sum() / total) if total > 0 else 0.0
+
+
+def self_intersections(V, F) -> np.ndarray:
+    """Mark the triangles of a mesh that intersect another triangle of the same mesh.
+
+    Parameters
+    ----------
+    V : (n, 3) float NumPy array
+        Vertices.
+    F : (m, 3) int NumPy array
+        Triangles.
+
+    Returns
+    -------
+    (m,) bool NumPy array
+        True for every triangle that another triangle passes through: one
+        sharing no vertex with it, or one vertex (a fan that turned through
+        itself). Triangles that share an edge, that only touch, or that
+        overlap in one plane are not counted.
+
+    Notes
+    -----
+    MeshLab's ``compute_selection_by_self_intersections_per_face``
+    (pymeshlab): a uniform-grid broad phase and exact triangle-triangle
+    tests; 0.6 s for 128,000 triangles on a loaded 2-core machine.
+
+    Examples
+    --------
+    >>> V = np.array([[0., 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0]])
+    >>> self_intersections(V, np.array([[0, 1, 2], [3, 4, 5]])).tolist()
+    [True, True]
+    >>> self_intersections(V, np.array([[0, 1, 2], [1, 5, 2]])).tolist()
+    [False, False]
+    """
+    import pymeshlab
+
+    V, F = check_triangles(V, F, "self_intersections")
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    mesh = ms.current_mesh()
+    if mesh.face_number() != len(F):     # MeshLab keeps the triangles in order; anything else would misreport
+        raise RuntimeError(f"self_intersections(): MeshLab returned {mesh.face_number()} faces for {len(F)}")
+    return np.asarray(mesh.face_selection_array(), dtype=bool)
 
 
 @dataclass(frozen=True)

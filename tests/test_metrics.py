@@ -130,6 +130,48 @@ def test_flipped_fraction_needs_faces_or_normals():
         flipped_fraction(V, F, V)
 
 
+def test_flipped_fraction_of_a_sphere_with_an_inverted_cap_is_the_caps_area_share():
+    """An icosphere whose faces above z = 0.6 are reversed, against the sphere itself: their area over the total."""
+    from mi_loop.metrics import flipped_fraction
+
+    V, F = sphere_mesh(1.0, 3)
+    cap = V[F].mean(1)[:, 2] > 0.6
+    G = F.copy()
+    G[cap] = G[cap][:, ::-1]
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    share = area[cap].sum() / area.sum()
+    assert 0.15 < share < 0.25                               # a cap of height 0.4: 20 % of a sphere's area
+    np.testing.assert_allclose(flipped_fraction(V, G, V, F), share, rtol=1e-12)
+    assert flipped_fraction(V, F, V, F) == 0.0
+
+
+def test_self_intersections_of_crossing_triangles_and_of_closed_convex_meshes():
+    from mi_loop.metrics import self_intersections
+
+    V = np.array([[0.0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0]])
+    np.testing.assert_array_equal(self_intersections(V, [[0, 1, 2], [3, 4, 5]]), [True, True])
+    V_apart = V + np.array([[0, 0, 0]] * 3 + [[0, 0, 5]] * 3)            # the second one moved clear above
+    np.testing.assert_array_equal(self_intersections(V_apart, [[0, 1, 2], [3, 4, 5]]), [False, False])
+    for V, F in (sphere_mesh(1.0, 3), box_mesh((1.0, 2.0, 3.0))):      # closed and convex: none
+        assert not self_intersections(V, F).any()
+    V, F = sphere_mesh(1.0, 3)
+    top = int(np.argmax(V[:, 2]))
+    V[top] = [0.0, 0.0, -1.5]                       # the top vertex pushed through the bottom: its fan crosses it
+    crossed = self_intersections(V, F)
+    fan = (F == top).any(1)
+    assert crossed[fan].all() and 0 < crossed[~fan].sum() < 20, (crossed[fan].sum(), crossed[~fan].sum())
+
+
+def test_self_intersections_rejects_bad_meshes():
+    from mi_loop.metrics import self_intersections
+
+    with pytest.raises(ValueError, match=r"^self_intersections\(\): expected mesh vertices of shape \(n, 3\) with "
+                                         r"n > 0, got shape \(4, 2\)$"):
+        self_intersections(np.zeros((4, 2)), [[0, 1, 2]])
+    with pytest.raises(ValueError, match=r"^self_intersections\(\): expected mesh face indices in \[0, 3\), "):
+        self_intersections(np.eye(3), [[0, 1, 3]])
+
+
 def test_drift_follows_the_barycentric_point_of_a_deforming_mesh():
     """Attached points follow an affine motion exactly (drift 0); moved points drift by what they moved."""
     from mi_loop.metrics import attach, drift

@@ -7,7 +7,11 @@ interrupted run leaves no partial output (and removes the directories it created
 ``report.json`` holds ``input`` and ``input_info`` (what was read, whether
 normals were estimated), ``params`` (the options actually used), ``converged``,
 ``timings_s``, ``metrics`` (two-sided distances to the data, relative to its
-bounding-box diagonal), ``template`` (its source; for ``--template`` the
+bounding-box diagonal; ``flipped_area_pct``, the share of the limit surface's
+area facing against the nearest data normal, and ``self_intersecting_pct`` /
+``self_intersecting_faces``, the limit triangles crossed by another part of
+the surface; for a mesh input ``input_self_intersecting_pct``, the same of the
+input), ``template`` (its source; for ``--template`` the
 polygons split into triangles and its size and offset relative to the data),
 ``final_energy``, ``machine``, ``variant``; with ``--demo`` also
 ``metrics_clean`` (the same distances to the noise-free torus).
@@ -29,7 +33,7 @@ __all__ = ["OUTPUTS", "run"]
 #: The files ``mi-loop fit`` writes into OUTDIR, in this order.
 OUTPUTS = ("control.ply", "limit.ply", "report.json", "loss.png", "render.png")
 
-_TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha"}
+_TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha", "fold": "fold"}
 
 
 def _load(input: Path | None, log):
@@ -49,20 +53,26 @@ def _load(input: Path | None, log):
 
 
 def _stage_line(options: FitOptions) -> str:
-    """The terms actually on, with their weights: ``IMLS + 3 x coverage + 0.001 x ARAP``."""
+    """The terms actually on, with their weights: ``IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold``."""
     parts = [name if weight is None else f"{getattr(options, weight):g} x {name}"
              for name, weight in _TERM_WEIGHTS.items() if name in options.terms]
     return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}"
 
 
-def _fit(P, N, template, options: FitOptions, log):
+def _fit(P, N, template, options: FitOptions, log, mesh=None):
     """Run :func:`~mi_loop.fitting.static.fit` with a progress bar; ``(result, converged)``."""
     from mi_loop.fitting.static import fit
 
     log.say(_stage_line(options))
     with log.bar("fitting") as update:
-        result = fit(P, N, template=template, progress=lambda i, n, E: update(i, n, f"E={E:.3e}"),
+        result = fit(P, N, template=template, mesh=mesh, progress=lambda i, n, E: update(i, n, f"E={E:.3e}"),
                      **asdict(options))
+    tinfo = result.info["template"]
+    if "feature_curves" in tinfo:
+        log.say(f"sharp features: {tinfo['feature_curves']} feature curves ({tinfo['feature_edges']} mesh edges "
+                f"above {tinfo['feature_angle']:g} degrees), {tinfo['creases']} crease edges on the control mesh")
+    elif options.features == "auto" and mesh is not None:
+        log.say("sharp features: none found (no feature curve of at least 5 % of the diagonal)")
     n, converged = result.params["iterations"], result.converged
     how = (f"converged after {n} iterations (best energy improved by less than {options.tolerance:g})"
            if converged else f"stopped at the iteration cap ({n}) before converging; raise --iterations")
@@ -86,8 +96,37 @@ def _measure(result, target, P, clean, seed, log):
         log.say(f"distance to the clean torus (without noise and outliers): mean "
                 f"{metrics_clean['mean']:.2e}, RMS {metrics_clean['rms']:.2e}, "
                 f"Hausdorff {metrics_clean['hausdorff']:.2e}")
+    metrics.update(_folds(V_lim, F_lim, target, log))
     result.timings["metrics"] = time.perf_counter() - t
     return metrics, metrics_clean, (V_lim, F_lim, N_lim)
+
+
+def _folds(V_lim, F_lim, target, log) -> dict:
+    """Flipped area and self-intersections of the limit surface (and of a mesh input), warned about when non-zero."""
+    from mi_loop.metrics import flipped_fraction, self_intersections
+
+    if target[0] == "points":
+        flipped = flipped_fraction(V_lim, F_lim, target[1], N_target=target[2])
+    else:
+        flipped = flipped_fraction(V_lim, F_lim, target[1], target[2])
+    crossed = self_intersections(V_lim, F_lim)
+    out = {"flipped_area_pct": 100.0 * flipped, "self_intersecting_pct": 100.0 * float(crossed.mean()),
+           "self_intersecting_faces": int(crossed.sum())}
+    source = ""
+    if target[0] == "mesh":
+        out["input_self_intersecting_pct"] = 100.0 * float(self_intersections(target[1], target[2]).mean())
+        source = f"; the input has {out['input_self_intersecting_pct']:.3g} %"
+    log.say(f"folds: {out['flipped_area_pct']:.3g} % of the limit surface's area faces against the data, "
+            f"{out['self_intersecting_faces']} of {len(F_lim)} limit faces intersect the surface elsewhere")
+    if flipped > 0:
+        log.warning(f"{out['flipped_area_pct']:.3g} % of the limit surface's area faces against the nearest data "
+                    "normal (a fold, or a part too thin for the control mesh): see render.png; more --vertices "
+                    "or a larger --fold may remove it")
+    if crossed.any():
+        log.warning(f"{out['self_intersecting_faces']} of {len(F_lim)} limit faces "
+                    f"({out['self_intersecting_pct']:.3g} %) intersect another part of the surface{source}; "
+                    "more --vertices or a larger --fold may remove them")
+    return out
 
 
 def _report(input, info, result, converged, metrics, metrics_clean, template_info, variant):
@@ -95,7 +134,7 @@ def _report(input, info, result, converged, metrics, metrics_clean, template_inf
               "params": result.params, "converged": converged, "timings_s": result.timings,
               "metrics": metrics, "template": template_info or result.info["template"],
               "machine": platform.node(), "variant": variant,
-              "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "total")}}
+              "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "fold", "total")}}
     if metrics_clean is not None:
         report["metrics_clean"] = metrics_clean
         report["metrics_note"] = ("metrics: distances to the noisy input points (outliers included); "
@@ -138,14 +177,16 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
     out = io.ensure_writable_dir(output)
     try:
         set_variant(variant)
-        result, converged = _fit(P, N, None if V_t is None else (V_t, F_t), options, log)
+        mesh = target[1:] if target[0] == "mesh" and V_t is None else None
+        result, converged = _fit(P, N, None if V_t is None else (V_t, F_t), options, log, mesh)
         metrics, metrics_clean, limit = _measure(result, target, P, clean, options.seed, log)
         t = time.perf_counter()
-        loss, render = loss_plot(result.history), side_by_side(target, result.V, result.F)
+        loss = loss_plot(result.history)
+        render = side_by_side(target, result.V, result.F, creases=result.creases)
         result.timings["pictures"] = time.perf_counter() - t
         report = _report(input, info, result, converged, metrics, metrics_clean, template_info, variant)
         with io.staged_outputs(out) as stage:
-            io.write_ply(stage / "control.ply", result.V, result.F)
+            io.write_ply(stage / "control.ply", result.V, result.F, creases=result.creases)
             io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2])
             io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
             io.write_png(stage / "loss.png", loss)

@@ -176,6 +176,12 @@ def _fit_options(p) -> None:
     p.add_argument("--tolerance", type=float, default=o.tolerance,
                    help="relative improvement below which the fit has converged (default %(default)s)")
     p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(""))
+    p.add_argument("--fold", type=float, default=o.fold,
+                   help="weight of the barrier on limit normals turned by more than 60 degrees from the nearest "
+                        "data normals (default %(default)s; 0: off)")
+    p.add_argument("--features", choices=["auto", "off"], default=o.features,
+                   help="for a mesh input, keep its sharp features (edges above 40 degrees) as creases of the "
+                        "control mesh (default %(default)s; point clouds have none here)")
 
 
 def _sequence_parser(sub, common) -> None:

@@ -12,7 +12,8 @@ __all__ = ["LOSS_TERMS", "agg_figure", "drift_figure", "figure_pixels", "loss_fi
            "side_by_side", "splat_mesh", "strip_figure"]
 
 #: History keys of :attr:`mi_loop.fitting.static.FitResult.history` drawn by :func:`loss_figure`, and labels.
-LOSS_TERMS = {"imls": "IMLS (mean f^2)", "cover": "cover * coverage", "arap": "alpha * ARAP / n"}
+LOSS_TERMS = {"imls": "IMLS (mean f^2)", "cover": "cover * coverage", "arap": "alpha * ARAP / n",
+              "fold": "fold * fold barrier"}
 
 
 def plain(x):
@@ -279,7 +280,7 @@ def splat_mesh(P: np.ndarray, N: np.ndarray, radius: float):
 
 
 def side_by_side(target, fit_V, fit_F, *, resolution: int = 320, spp: int = 32,
-                 azimuth: float = 35.0, elevation: float = 20.0) -> np.ndarray:
+                 azimuth: float = 35.0, elevation: float = 20.0, creases=None) -> np.ndarray:
     """Render the target and the fitted limit surface with the same camera.
 
     Parameters
@@ -294,6 +295,8 @@ def side_by_side(target, fit_V, fit_F, *, resolution: int = 320, spp: int = 32,
         Samples per pixel.
     azimuth, elevation : float, optional
         Camera direction, degrees.
+    creases : (c, 2) int NumPy array, optional
+        Crease edges of the fitted control mesh.
 
     Returns
     -------
@@ -312,7 +315,7 @@ def side_by_side(target, fit_V, fit_F, *, resolution: int = 320, spp: int = 32,
     bbox = (A.min(0), A.max(0))
     grey = {"type": "plastic", "diffuse_reflectance": {"type": "rgb", "value": [0.55, 0.55, 0.52]}}
     shapes = [plain_mesh(A, B, bsdf=mi.load_dict(grey)),
-              create(fit_V, fit_F, level=2, bsdf=mi.load_dict(PLASTIC))]
+              create(fit_V, fit_F, level=2, creases=creases, bsdf=mi.load_dict(PLASTIC))]
     images = []
     for shape in shapes:
         scene = mi.load_dict(scene_dict(shape, views=[(azimuth, elevation)], resolution=resolution,

@@ -41,6 +41,7 @@ SAMPLE_MODES = ("vertices", "level1", "random")
 N_VERTICES = 1000     # control vertices of the automatic template
 SAMPLES = "level1"    # the points of a level-1 tessellation: about 4x the control vertices
 COVER = 3.0           # weight of the coverage term (data points pull their nearest samples)
+FOLD = 0.01           # weight of the static fit's fold barrier (limit normals against the data's)
 
 
 class OptionError(ValueError):
@@ -115,6 +116,7 @@ SEED = (_seed, "an integer >= 0")
 FLAG = (_flag, "True or False")
 N_VERTICES_RULE = (lambda v: _is_int(v) and v >= 4, "an integer >= 4")
 SAMPLES_RULE = (lambda v: v in SAMPLE_MODES, f"one of {SAMPLE_MODES}")
+FEATURES_RULE = (lambda v: v in ("auto", "off"), "'auto' or 'off'")
 
 
 @dataclass
@@ -146,6 +148,17 @@ class FitOptions:
         Weight of the coverage term (:mod:`mi_loop.energies.coverage`); 0: off.
     seed : int
         Seed of the template's sampling and of ``samples='random'``.
+    fold : float
+        Weight of the fold barrier (:mod:`mi_loop.energies.fold`) on limit
+        normals turned by more than 60 degrees from those of the nearest data
+        points; 0: off. On dragon_20k at 1000 control vertices 0.01 removes the
+        fold and the self-intersections; 0.1 and 1 fit worse (BENCHMARKS.md).
+    features : {'auto', 'off'}
+        For a mesh input: ``'auto'`` finds sharp feature curves (dihedral
+        angle above 40 degrees, chains of at least 5 % of the diagonal) and,
+        when there are any, fits a template decimated along them with
+        infinitely sharp creases there (:func:`~mi_loop.fitting.template.feature_template`);
+        ``'off'``: the smooth pipeline. Point clouds have no features here.
     """
 
     n_vertices: int = N_VERTICES
@@ -156,17 +169,20 @@ class FitOptions:
     tolerance: float = 5e-3
     cover: float = COVER
     seed: int = 0
+    fold: float = FOLD
+    features: str = "auto"
 
     def __post_init__(self):
-        _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": WEIGHT,
+        _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": WEIGHT, "fold": WEIGHT,
                       "h0": (lambda v: v is None or _positive_real(v), "a finite number > 0 (or None: automatic)"),
                       "samples": SAMPLES_RULE, "max_iterations": COUNT, "tolerance": WEIGHT,
-                      "cover": WEIGHT, "seed": SEED})
+                      "cover": WEIGHT, "seed": SEED, "features": FEATURES_RULE})
 
     @property
     def terms(self) -> list:
         """Names of the energy terms that are on, largest weight first where it is fixed."""
-        return ["IMLS"] + (["coverage"] if self.cover > 0 else []) + (["ARAP"] if self.alpha > 0 else [])
+        return (["IMLS"] + (["coverage"] if self.cover > 0 else []) + (["ARAP"] if self.alpha > 0 else [])
+                + (["fold"] if self.fold > 0 else []))
 
 
 @dataclass

@@ -266,6 +266,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     from mi_loop.ad.control import ControlPoints
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
+    from mi_loop.energies.fold import fold_energy
     from mi_loop.energies.imls import IMLS
 
     n = len(x0)
@@ -318,8 +319,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         if arap_rest is not None:
             E = E + alpha_r * arap_rest.energy(x, arap_rest.rotations(Vn))
         if fold is not None:       # limit normals turned by more than 60 degrees since the previous frame
-            turned = dr.maximum(0.5 - dr.dot(op.normals(x), fold[0]), 0.0)
-            E = E + fold[1] * dr.mean(dr.square(turned))
+            E = E + fold[1] * fold_energy(op.normals(x), fold[0])
         refresh = it % 10 == 0
         if imls is not None:
             Q = op.positions(x)

@@ -1,4 +1,4 @@
-"""Fit a Loop control mesh to oriented points: IMLS distance + ARAP, Adam in Dr.Jit.
+"""Fit a Loop control mesh to oriented points: IMLS distance, coverage, ARAP and a fold barrier, Adam in Dr.Jit.
 
 No file I/O here (see :mod:`mi_loop.io` and :mod:`mi_loop.io.points`); the CLI
 passes a progress callback.
@@ -18,7 +18,14 @@ from mi_loop.mesh.topology import validate_mesh
 from mi_loop.subdiv.masks import limit_mesh, vertex_samples
 from mi_loop.subdiv.tessellation import tessellate
 
-__all__ = ["FitResult", "Normalisation", "fit", "sample_parameters"]
+__all__ = ["FOLD_COSINE", "FOLD_LEVEL", "FitResult", "Normalisation", "fit", "sample_parameters"]
+
+#: Tessellation level of the fold barrier's samples (``4**level`` per control face).
+FOLD_LEVEL = 2
+#: The barrier acts on limit normals whose cosine to the nearest data normal is below this.
+FOLD_COSINE = 0.5
+#: Data normals averaged into each reference normal.
+FOLD_NEIGHBOURS = 8
 
 
 @dataclass
@@ -70,8 +77,8 @@ class FitResult:
     V_template : (n, 3) float64 numpy array
         Control points before fitting, in the input's units.
     history : dict of lists
-        Per iteration: ``imls``, ``cover``, ``arap`` (the weighted terms) and
-        ``total`` energies, ``lr``.
+        Per iteration: ``imls``, ``cover``, ``arap``, ``fold`` (the weighted
+        terms) and ``total`` energies, ``lr``.
     timings : dict
         Seconds per stage.
     params : dict
@@ -81,6 +88,8 @@ class FitResult:
     converged : bool
         True when a stopping rule ended the loop (no more relative improvement
         than ``tolerance``); False when it ran into ``max_iterations``.
+    creases : (c, 2) int64 numpy array or None
+        Infinitely sharp crease edges of the control mesh (sharp features).
     """
 
     V: np.ndarray
@@ -91,10 +100,11 @@ class FitResult:
     params: dict
     info: dict = field(default_factory=dict)
     converged: bool = False
+    creases: np.ndarray | None = None
 
     def limit_mesh(self, level: int = 3):
-        """Dense limit mesh ``(V_lim, F_lim, N_lim)`` of the fitted surface (NumPy)."""
-        return limit_mesh(self.V, self.F, level)
+        """Dense limit mesh ``(V_lim, F_lim, N_lim)`` of the fitted surface (NumPy), creases included."""
+        return limit_mesh(self.V, self.F, level, creases=self.creases)
 
 
 def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
@@ -142,13 +152,17 @@ def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
 def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=None,
         alpha: float = FitOptions.alpha, h0: float | None = FitOptions.h0, samples: str = FitOptions.samples,
         max_iterations: int = FitOptions.max_iterations, tolerance: float = FitOptions.tolerance,
-        cover: float = FitOptions.cover, seed: int = FitOptions.seed, progress=None) -> FitResult:
+        cover: float = FitOptions.cover, seed: int = FitOptions.seed, fold: float = FitOptions.fold,
+        features: str = FitOptions.features, mesh=None, creases=None,
+        progress=None) -> FitResult:
     """Fit a Loop control mesh to oriented points.
 
-    Minimises ``E = mean_j f(Q_j)^2 + cover * E_cover + alpha * E_arap(V0) / n``
+    Minimises ``E = mean_j f(Q_j)^2 + cover * E_cover + alpha * E_arap(V0) / n + fold * E_fold``
     over the control points ``V0`` where ``Q = W V0`` are exact limit samples,
-    ``f`` is the IMLS function of the data (Xie 2022, eqs. 8-13) and
-    ``E_cover`` the data-to-sample coverage term (:mod:`mi_loop.energies.coverage`),
+    ``f`` is the IMLS function of the data (Xie 2022, eqs. 8-13),
+    ``E_cover`` the data-to-sample coverage term (:mod:`mi_loop.energies.coverage`)
+    and ``E_fold`` the barrier on limit normals turned by more than 60 degrees
+    from the normals of the nearest data points (:mod:`mi_loop.energies.fold`),
     with Adam (Dr.Jit). The keyword arguments are the fields of
     :class:`~mi_loop.fitting.options.FitOptions` (defaults and checks there),
     so ``fit(P, N, **dataclasses.asdict(options))`` runs ``options``.
@@ -163,6 +177,16 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         Control vertices of the automatic template (ignored with ``template``).
     template : tuple ``(V, F)``, optional
         Control mesh to start from, in the data's units.
+    features : {'auto', 'off'}
+        With ``mesh`` and no ``template``: ``'auto'`` looks for sharp feature
+        curves in ``mesh`` and, when there are any, starts from
+        :func:`~mi_loop.fitting.template.feature_template` with its control
+        edges along them as infinitely sharp creases; ``'off'`` never does.
+    mesh : tuple ``(V, F)``, optional
+        The surface mesh the points were sampled from, in the data's units
+        (for feature detection).
+    creases : (c, 2) int array, optional
+        Infinitely sharp crease edges of ``template``.
     alpha : float
         ARAP weight (default 0.001; raise it for noisy data).
     h0 : float, optional
@@ -184,6 +208,14 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         of the data are not left uncovered (default 3). 0 turns it off.
     seed : int
         Seed for random sampling.
+    fold : float
+        Weight of the fold barrier (default 0.01): a fold (an inside-out
+        strip of the limit surface) can lie on the data, where the distance
+        terms do not see it. It acts on the limit normals at a level-2
+        tessellation (:data:`FOLD_LEVEL`), against the mean normal of the 8
+        nearest data points (:data:`FOLD_NEIGHBOURS`). 0 turns it off; so
+        does a template with sharp features (``features``), whose averaged
+        reference normals point between the two sides of every sharp edge.
     progress : callable, optional
         Called as ``progress(iteration, max_iterations, energy)``.
 
@@ -212,7 +244,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     P, N = check_oriented_points(points, normals, "fit")
     try:
         FitOptions(n_vertices=n_vertices, alpha=alpha, h0=h0, samples=samples, max_iterations=max_iterations,
-                   tolerance=tolerance, cover=cover, seed=seed)
+                   tolerance=tolerance, cover=cover, seed=seed, fold=fold, features=features)
     except OptionError as exc:
         raise exc.renamed("fit") from None
     _check_template(template)
@@ -220,10 +252,21 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     Pn = norm.forward(P)
 
     t = time.perf_counter()
-    if template is None:
+    found = None
+    if template is None and mesh is not None and features == "auto":
+        from mi_loop.fitting.template import feature_template
+
+        found = feature_template(mesh[0], mesh[1], n_vertices)    # in the data's units: the decimation
+    if found is not None:                 # is not scale-invariant (the fandisk normalised got 252 creases, not 266)
+        V0, F, creases, tinfo = found     # sharp features: a planar-quadric template with creases along them
+        V0 = norm.forward(V0)
+        tinfo = {"source": "mesh with sharp features", **tinfo, "fold": "off: the creases hold the features"}
+        fold = 0.0      # its averaged reference normals fight sharp edges (fandisk: NAE 0.77 -> 1.89 with it)
+    elif template is None:
         from mi_loop.fitting.template import make_template
 
         V0, F, tinfo = make_template(Pn, N, n_vertices, seed=seed)
+        creases = None
     else:
         V0, F = template
         V0, F, _ = validate_mesh(V0, F, "fit")
@@ -233,7 +276,11 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
 
     t = time.perf_counter()
     fid, uv = sample_parameters(F, len(V0), samples, seed)
-    op = LimitOperator(F, len(V0), fid, uv, derivatives=False)
+    op = LimitOperator(F, len(V0), fid, uv, creases=creases, derivatives=False)
+    fold_op = None
+    if fold > 0:      # the barrier's samples: denser than the distance terms', so small folds show
+        fid_f, uv_f, _ = tessellate(F, FOLD_LEVEL)
+        fold_op = LimitOperator(F, len(V0), fid_f, uv_f, creases=creases, derivatives=True)
     timings["operator"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -244,16 +291,28 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     timings["energies"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    V, history, converged = _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress,
-                                      coverage, cover)
+    weights = {"alpha": alpha, "cover": cover if coverage is not None else 0.0, "fold": float(fold)}
+    V, history, converged = _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, tolerance,
+                                      progress)
     timings["optimisation"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
     params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
               "h0": float(imls.h0), "samples": samples, "n_samples": int(len(fid)),
-              "max_iterations": max_iterations, "tolerance": tolerance, "cover": cover, "seed": seed,
-              "iterations": len(history["total"]), "normalisation_scale": norm.scale}
+              "max_iterations": max_iterations, "tolerance": tolerance, "cover": cover, "seed": seed, "fold": fold,
+              "iterations": len(history["total"]), "normalisation_scale": norm.scale,
+              "features": features, "n_creases": 0 if creases is None else int(len(creases))}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
-                     {"template": tinfo}, converged)
+                     {"template": tinfo}, converged, None if creases is None else np.asarray(creases))
+
+
+def _reference_normals(imls, Q):
+    """The fold barrier's reference normals at samples ``Q`` ((k, 3) NumPy): ``mi.Normal3f``."""
+    import mitsuba as mi
+
+    from mi_loop.ad.upload import upload_vec
+    from mi_loop.energies.fold import nearest_data_normals
+
+    return upload_vec(mi.Normal3f, nearest_data_normals(imls.tree, imls.normals, Q, FOLD_NEIGHBOURS))
 
 
 def _check_template(template):
@@ -262,8 +321,8 @@ def _check_template(template):
                          f"{type(template).__name__}")
 
 
-def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, coverage=None, cover=0.0):
-    """Adam on the control points.
+def _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, tolerance, progress):
+    """Adam on the control points; ``weights`` holds ``alpha``, ``cover`` and ``fold``.
 
     Schedule: the first step size is a third of the initial RMS IMLS residual
     (the distance the surface has to move), capped by a twentieth of the mean
@@ -272,15 +331,19 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
     returns to the best one; after three halvings, or when the best energy
     improved by less than ``tolerance`` over the last 40 iterations, it stops.
     A non-finite energy restores the best iterate with a quarter of the step.
+    The fold barrier's reference normals (those of the data points nearest to
+    the samples) are refreshed with the IMLS neighbourhoods.
     """
     import drjit as dr
     import mitsuba as mi
 
     from mi_loop.ad.control import ControlPoints
+    from mi_loop.energies.fold import fold_energy
 
     n = len(V0)
-    alpha_t = dr.opaque(mi.Float, alpha / n)
-    history = {"imls": [], "cover": [], "arap": [], "total": [], "lr": []}
+    alpha_t = dr.opaque(mi.Float, weights["alpha"] / n)
+    cover, fold = weights["cover"], weights["fold"]
+    history = {"imls": [], "cover": [], "arap": [], "fold": [], "total": [], "lr": []}
     best_E, best_V = np.inf, V0.copy()
     best_at, decays, recoveries = 0, 0, 0
     patience = 12
@@ -289,6 +352,10 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
     imls.update(refresh_at)
     if coverage is not None:
         coverage.update(refresh_at)
+    reference = None
+    if fold:
+        fold_at = np.array(fold_op.positions(x0), dtype=np.float64).T
+        reference = _reference_normals(imls, fold_at)
     e0 = float(imls.energy(op.positions(x0), reduce="mean")[0])
     if not np.isfinite(e0):
         raise FitError("fit(): the optimisation diverged (non-finite energy); "
@@ -298,17 +365,22 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
     for it in range(max_iterations):
         x = ControlPoints(opt["x"])       # shared by the limit operator and ARAP
         Q = op.positions(x)
+        Q_fold, normals = fold_op.positions_normals(x) if fold else (None, None)
         Vn = x.numpy()
         Qn = np.array(Q, dtype=np.float64).T
         if np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
             imls.update(Qn)
             if coverage is not None:
                 coverage.update(Qn)
+            if fold:
+                fold_at = np.array(Q_fold, dtype=np.float64).T
+                reference = _reference_normals(imls, fold_at)
             refresh_at = Qn
         terms = [imls.energy(Q, reduce="mean"),
                  cover * coverage.energy(Q) if coverage is not None else mi.Float(0.0),
-                 alpha_t * arap.energy(x, arap.rotations(Vn))]
-        E = terms[0] + terms[1] + terms[2]
+                 alpha_t * arap.energy(x, arap.rotations(Vn)),
+                 fold * fold_energy(normals, reference, FOLD_COSINE) if fold else mi.Float(0.0)]
+        E = terms[0] + terms[1] + terms[2] + terms[3]
         dr.eval(*terms, E)
         values = (*(float(t[0]) for t in terms), float(E[0]))
         if not (np.all(np.isfinite(values)) and np.isfinite(Vn).all()):
@@ -320,15 +392,15 @@ def _optimise(op, imls, arap, V0, alpha, max_iterations, tolerance, progress, co
             opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
             continue
         dr.backward(E)
-        for key, val in zip(("imls", "cover", "arap", "total"), values):
+        for key, val in zip(("imls", "cover", "arap", "fold", "total"), values):
             history[key].append(val)
         history["lr"].append(lr)
-        if values[3] < best_E * (1.0 - tolerance):
+        if values[-1] < best_E * (1.0 - tolerance):
             best_at = it
-        if values[3] < best_E:
-            best_E, best_V = values[3], Vn
+        if values[-1] < best_E:
+            best_E, best_V = values[-1], Vn
         if progress is not None:
-            progress(it + 1, max_iterations, values[3])
+            progress(it + 1, max_iterations, values[-1])
         if it - best_at > patience:
             decays += 1
             if decays > 3:

@@ -157,7 +157,26 @@ def check_corners(corners, n: int, func: str):
 
 
 def check_rules(boundary: str, crease_method: str, func: str):
-    """The boundary rule and crease method, checked against :data:`BOUNDARY_RULES` and :data:`CREASE_METHODS`."""
+    """The boundary rule and crease method, checked against :data:`BOUNDARY_RULES` and :data:`CREASE_METHODS`.
+
+    Parameters
+    ----------
+    boundary : str
+        OpenSubdiv's boundary interpolation.
+    crease_method : str
+        OpenSubdiv's crease method.
+    func : str
+        Name of the calling public function, for the message.
+
+    Returns
+    -------
+    tuple ``(boundary, crease_method)``
+
+    Raises
+    ------
+    ValueError
+        For a name outside the lists (the message lists them).
+    """
     if boundary not in BOUNDARY_RULES:
         fail(func, f"boundary one of {', '.join(map(repr, BOUNDARY_RULES))}", repr(boundary))
     if crease_method not in CREASE_METHODS:

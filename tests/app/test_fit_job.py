@@ -56,7 +56,14 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
 
     # the stage line names the terms that are on; the end says whether the fit converged
     err = captured.err
-    assert "fitting: template, limit operator, then Adam on IMLS + 3 x coverage + 0.001 x ARAP" in err
+    assert "fitting: template, limit operator, then Adam on IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold" in err
+    # folds: measured and written to report.json, and a warning line whenever one is non-zero
+    assert 0 <= metrics["flipped_area_pct"] <= 100 and 0 <= metrics["self_intersecting_pct"] <= 100
+    assert metrics["self_intersecting_faces"] == round(metrics["self_intersecting_pct"] / 100 * 64 * params["n_faces"])
+    assert "input_self_intersecting_pct" not in metrics                      # points: no input mesh to test
+    assert re.search(r"folds: \S+ % of the limit surface's area faces against the data, \d+ of \d+ limit faces", err)
+    assert ("faces against the nearest data normal" in err) is (metrics["flipped_area_pct"] > 0)
+    assert ("intersect another part of the surface" in err) is (metrics["self_intersecting_faces"] > 0)
     n = params["iterations"]
     assert report["converged"] is (n < 60)
     assert (f"converged after {n} iterations" if n < 60 else "stopped at the iteration cap (60)") in err
@@ -270,6 +277,7 @@ def test_a_failing_writer_keeps_an_existing_outdir_as_it_was(tmp_path, capsys, m
 @pytest.mark.parametrize("argv, message", [
     (["--alpha", "-1"], r"fit --alpha: expected a finite number >= 0, got -1\.0$"),
     (["--cover", "nan"], r"fit --cover: expected a finite number >= 0, got nan$"),
+    (["--fold", "-0.5"], r"fit --fold: expected a finite number >= 0, got -0\.5$"),
     (["--iterations", "0"], r"fit --iterations: expected an integer >= 1, got 0$"),
     (["--tolerance=-1e-3"], r"fit --tolerance: expected a finite number >= 0, got -0\.001$"),
     (["--seed", "-1"], r"fit --seed: expected an integer >= 0, got -1$"),
@@ -377,6 +385,53 @@ def test_the_stage_line_names_the_terms_that_are_on():
     from mi_loop.fitting.options import FitOptions
 
     head = "fitting: template, limit operator, then Adam on "
-    assert _stage_line(FitOptions()) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
-    assert _stage_line(FitOptions(cover=0.0)) == head + "IMLS + 0.001 x ARAP"
-    assert _stage_line(FitOptions(alpha=0.0, cover=1.5)) == head + "IMLS + 1.5 x coverage"
+    assert _stage_line(FitOptions()) == head + "IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold"
+    assert _stage_line(FitOptions(fold=0.0)) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
+    assert _stage_line(FitOptions(cover=0.0, fold=0.0)) == head + "IMLS + 0.001 x ARAP"
+    assert _stage_line(FitOptions(alpha=0.0, cover=1.5, fold=0.1)) == head + "IMLS + 1.5 x coverage + 0.1 x fold"
+
+
+class _Log:
+    """Collects what :mod:`mi_loop.app.fit_job` says and warns."""
+
+    def __init__(self):
+        self.said, self.warned = [], []
+
+    def say(self, message):
+        self.said.append(message)
+
+    def warning(self, message):
+        self.warned.append(message)
+
+
+def test_folds_are_measured_reported_and_warned_about():
+    """An inverted cap (faces reversed, 20.8 % of the area) and a vertex pushed through the far side."""
+    from mi_loop.app.fit_job import _folds
+
+    V, F = datasets.icosphere(3)
+    log = _Log()
+    assert _folds(V, F, ("mesh", V, F), log) == {"flipped_area_pct": 0.0, "self_intersecting_pct": 0.0,
+                                                  "self_intersecting_faces": 0, "input_self_intersecting_pct": 0.0}
+    assert log.warned == [] and log.said == ["folds: 0 % of the limit surface's area faces against the data, "
+                                             "0 of 1280 limit faces intersect the surface elsewhere"]
+    G = F.copy()
+    cap = V[F].mean(1)[:, 2] > 0.6
+    G[cap] = G[cap][:, ::-1]
+    W = V.copy()
+    W[int(np.argmax(V[:, 2]))] = [0.0, 0.0, -1.5]
+    out = _folds(W, G, ("mesh", V, F), log)
+    assert 10 < out["flipped_area_pct"] < 30 and out["self_intersecting_faces"] >= 6
+    assert out["self_intersecting_pct"] == pytest.approx(100 * out["self_intersecting_faces"] / 1280)
+    flipped, crossed = log.warned
+    assert flipped == (f"{out['flipped_area_pct']:.3g} % of the limit surface's area faces against the nearest data "
+                       "normal (a fold, or a part too thin for the control mesh): see render.png; more --vertices "
+                       "or a larger --fold may remove it")
+    assert crossed == (f"{out['self_intersecting_faces']} of 1280 limit faces ({out['self_intersecting_pct']:.3g} %) "
+                       "intersect another part of the surface; the input has 0 %; more --vertices or a larger "
+                       "--fold may remove them")
+    # against oriented points (no input mesh): the normals decide, and there is no input share
+    P, N = V[::2], V[::2]
+    log = _Log()
+    out = _folds(V, G, ("points", P, N), log)
+    assert 10 < out["flipped_area_pct"] < 30 and "input_self_intersecting_pct" not in out
+    assert len(log.warned) == 1 and "faces against the nearest data normal" in log.warned[0]

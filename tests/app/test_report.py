@@ -20,8 +20,9 @@ def history(n=50, cover=True):
     imls = 1e-5 * np.exp(-it / 20)
     cov = (3e-3 * np.exp(-it / 30)) if cover else np.zeros(n)
     arap = np.full(n, 1e-7)
-    return {"imls": imls.tolist(), "cover": cov.tolist(), "arap": arap.tolist(),
-            "total": (imls + cov + arap).tolist()}
+    fold = 1e-6 * np.exp(-it / 10)
+    return {"imls": imls.tolist(), "cover": cov.tolist(), "arap": arap.tolist(), "fold": fold.tolist(),
+            "total": (imls + cov + arap + fold).tolist()}
 
 
 def legend(fig):
@@ -30,7 +31,10 @@ def legend(fig):
 
 def test_the_legend_lists_the_total_and_every_non_zero_term():
     assert legend(loss_figure(history())) == ["total E", *LOSS_TERMS.values()]
-    assert legend(loss_figure(history(cover=False))) == ["total E", LOSS_TERMS["imls"], LOSS_TERMS["arap"]]
+    assert legend(loss_figure(history(cover=False))) == ["total E", LOSS_TERMS["imls"], LOSS_TERMS["arap"],
+                                                         LOSS_TERMS["fold"]]
+    without_fold = history() | {"fold": [0.0] * 50}                          # the barrier off: no fold line
+    assert legend(loss_figure(without_fold)) == ["total E", *list(LOSS_TERMS.values())[:3]]
 
 
 def test_a_term_that_is_the_whole_total_is_drawn_on_top_of_it():

@@ -52,8 +52,8 @@ def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
     assert total[-1] < total[0]
     n_it = result.params["iterations"]
     assert 1 <= n_it < 100                                      # stopped by the schedule, not the cap
-    assert all(len(result.history[k]) == n_it for k in ("imls", "cover", "arap", "total", "lr"))
-    parts = np.sum([result.history[k] for k in ("imls", "cover", "arap")], axis=0)
+    assert all(len(result.history[k]) == n_it for k in ("imls", "cover", "arap", "fold", "total", "lr"))
+    parts = np.sum([result.history[k] for k in ("imls", "cover", "arap", "fold")], axis=0)
     np.testing.assert_allclose(parts, total, rtol=1e-5)
     assert min(result.history["cover"]) > 0                          # the default weight is on
     lr = np.asarray(result.history["lr"])
@@ -278,6 +278,12 @@ def test_fit_rejects_a_non_positive_h0(cloud):
 def test_fit_rejects_a_bad_cover_weight(cloud, cover):
     with pytest.raises(ValueError, match=rf"fit\(\): expected cover to be a finite number >= 0, got {cover}"):
         fit(*cloud, template=small_template(), cover=cover, max_iterations=5)
+
+
+@pytest.mark.parametrize("fold", [-0.1, float("nan")])
+def test_fit_rejects_a_bad_fold_weight(cloud, fold):
+    with pytest.raises(ValueError, match=rf"^fit\(\): expected fold to be a finite number >= 0, got {fold}$"):
+        fit(*cloud, template=small_template(), fold=fold, max_iterations=5)
 
 
 def test_fit_rejects_a_nan_alpha(cloud):
