@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mi_loop.mesh.geometry import face_normals
+from mi_loop.mesh.halfedge import Topology
 
 __all__ = ["FeatureCurves", "crease_edges", "dihedral_angles", "feature_curves"]
 
@@ -73,20 +74,11 @@ class FeatureCurves:
 
 def _dihedral(V, F):
     """Interior edges ``(e, 2)`` and the angle in degrees between the normals of their two faces."""
-    n = len(V)
-    a, b = F.ravel(), F[:, [1, 2, 0]].ravel()
-    key = np.minimum(a, b) * n + np.maximum(a, b)
-    order = np.argsort(key, kind="stable")
-    k = key[order]
-    pair = np.flatnonzero(k[1:] == k[:-1])
-    if len(k) > 2:                                   # edges of three or more faces are not features here
-        triple = np.flatnonzero(k[2:] == k[:-2])
-        pair = np.setdiff1d(pair, np.concatenate([triple, triple + 1]))
-    f1, f2 = order[pair] // 3, order[pair + 1] // 3
+    topo = Topology.build(F, len(V))
+    h = np.flatnonzero(topo.twin > np.arange(len(topo.twin)))        # one half-edge of every interior edge
     Nf = face_normals(V, F)
-    cos = np.clip(np.einsum("ij,ij->i", Nf[f1], Nf[f2]), -1.0, 1.0)
-    E = np.stack([k[pair] // n, k[pair] % n], 1)
-    return E, np.degrees(np.arccos(cos))
+    cos = np.clip(np.einsum("ij,ij->i", Nf[h // 3], Nf[topo.twin[h] // 3]), -1.0, 1.0)
+    return topo.E[topo.face_edge.ravel()[h]], np.degrees(np.arccos(cos))
 
 
 def dihedral_angles(V, F) -> np.ndarray:
@@ -97,7 +89,7 @@ def dihedral_angles(V, F) -> np.ndarray:
     V : (n, 3) float NumPy array
         Vertices.
     F : (m, 3) int NumPy array
-        Triangles, consistently oriented (edges of three or more faces are left out).
+        Triangles of a manifold, consistently oriented mesh (as :func:`mi_loop.validate_mesh` accepts).
 
     Returns
     -------
@@ -120,7 +112,7 @@ def feature_curves(V, F, angle: float = 40.0, min_length: float = 0.0) -> Featur
     V : (n, 3) float NumPy array
         Vertices.
     F : (m, 3) int NumPy array
-        Triangles, consistently oriented.
+        Triangles of a manifold, consistently oriented mesh.
     angle : float
         Dihedral angle in degrees (between the face normals) above which an edge is a feature.
     min_length : float

@@ -42,6 +42,14 @@ def _sharpness_values(s, count: int, what: str, func: str) -> np.ndarray:
     return np.where(s >= INFINITE_SHARPNESS, np.inf, s)
 
 
+def _split(tagged):
+    """``(items as an array, sharpness or None)`` of a ``creases`` / ``corners`` argument; ``(None, None)`` if empty."""
+    items, s = tagged if isinstance(tagged, tuple) and len(tagged) == 2 else (tagged, None)
+    if items is None or np.asarray(items).size == 0:
+        return None, None
+    return np.asarray(items), s
+
+
 def check_creases(creases, F: np.ndarray, n: int, func: str):
     """Normalise a ``creases`` argument to ``(E (c, 2) int64, s (c,) float64)`` or None.
 
@@ -82,14 +90,8 @@ def check_creases(creases, F: np.ndarray, n: int, func: str):
     ...
     ValueError: f(): expected crease edges that are edges of the mesh, got crease 0 = [1, 3]
     """
-    if creases is None:
-        return None
-    if isinstance(creases, tuple) and len(creases) == 2:
-        E, s = creases
-    else:
-        E, s = creases, None
-    E = np.asarray(E)
-    if E.size == 0:
+    E, s = _split(creases)
+    if E is None:
         return None
     if E.ndim != 2 or E.shape[1] != 2 or not np.issubdtype(E.dtype, np.integer):
         fail(func, "creases as an integer array of shape (c, 2)", f"{E.dtype} array of shape {E.shape}")
@@ -137,14 +139,8 @@ def check_corners(corners, n: int, func: str):
     ...
     ValueError: f(): expected corner vertices in [0, 4), got vertex 4 at corner 0
     """
-    if corners is None:
-        return None
-    if isinstance(corners, tuple) and len(corners) == 2:
-        ids, s = corners
-    else:
-        ids, s = corners, None
-    ids = np.asarray(ids)
-    if ids.size == 0:
+    ids, s = _split(corners)
+    if ids is None:
         return None
     if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
         fail(func, "corners as a 1-D integer array of vertex ids", f"{ids.dtype} array of shape {ids.shape}")
