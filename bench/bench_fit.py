@@ -306,12 +306,13 @@ def bench_robust(args, out: list) -> None:
     rows, cache = [], {}
     ref = fit_and_measure(P, N, target, cache, "clean, default alpha", rows, out)
     rows[-1][4] = "1.00 / 1.00 / 1.00"
-    cases = [("noise", 0.1), ("outliers", 0.1), ("partial", 0.01)]
+    cases = [("noise", None), ("noise", 0.1), ("outliers", None), ("outliers", 0.1), ("partial", 0.01)]
     if not args.quick:
         cases += [("noise", 0.01), ("outliers", 0.01)]
     for kind, alpha in cases:
         Pc, Nc = corrupt(P, N, kind)
-        fit_and_measure(Pc, Nc, target, cache, f"{kind} ({len(Pc)} pts), alpha {alpha:g}", rows, out,
+        how = "default alpha (noise-aware)" if alpha is None else f"alpha {alpha:g}"
+        fit_and_measure(Pc, Nc, target, cache, f"{kind} ({len(Pc)} pts), {how}", rows, out,
                         ref=ref, alpha=alpha, visible=kind == "partial")
     table("Robustness, bunny.obj samples, 1000 control vertices, against the clean mesh "
           "(P2S, HD x 1e-3; NAE degrees; ratio to the clean fit)",

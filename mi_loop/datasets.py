@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONTROL_MESHES", "blob", "control_mesh", "icosphere", "noisy_torus_points", "torus"]
+__all__ = ["CONTROL_MESHES", "blob", "control_mesh", "icosphere", "noisy_torus_points", "torus", "torus_distance"]
 
 
 def icosphere(subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -143,6 +143,31 @@ def torus(n_major: int = 12, n_minor: int = 8, major_radius: float = 1.0,
     d = i * n_minor + (j + 1) % n_minor
     F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
     return V.reshape(-1, 3), F.astype(np.int64)
+
+
+def torus_distance(X, major_radius: float = 1.0, minor_radius: float = 0.4) -> np.ndarray:
+    """Exact distance of points to the torus around the z axis (the surface of :func:`noisy_torus_points`).
+
+    Parameters
+    ----------
+    X : (k, 3) float array
+        Points.
+    major_radius, minor_radius : float, optional
+        Ring and tube radii.
+
+    Returns
+    -------
+    (k,) float64 NumPy array
+        ``| |(rho - R, z)| - r |`` with ``rho`` the distance from the z axis.
+
+    Examples
+    --------
+    >>> torus_distance([[1.4, 0, 0], [1.0, 0, 0.5], [0, 0, 0]]).round(12).tolist()
+    [0.0, 0.1, 0.6]
+    """
+    X = np.asarray(X, dtype=np.float64)
+    rho = np.hypot(X[:, 0], X[:, 1])
+    return np.abs(np.hypot(rho - major_radius, X[:, 2]) - minor_radius)
 
 
 #: Generators by name, as offered by ``mi-loop control NAME``.

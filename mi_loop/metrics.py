@@ -34,7 +34,8 @@ def _stats(d, scale):
     return {"mean": float(d.mean()), "rms": float(np.sqrt(np.mean(d * d))), "max": float(d.max())}
 
 
-def two_sided(V_fit, F_fit, target, F_target=None, n_samples: int = 100_000, seed: int = 0):
+def two_sided(V_fit, F_fit, target, F_target=None, n_samples: int = 100_000, seed: int = 0, *,
+              exact=None):
     """Two-sided distances between a fitted surface and a target, relative to the target's bbox diagonal.
 
     Parameters
@@ -51,6 +52,12 @@ def two_sided(V_fit, F_fit, target, F_target=None, n_samples: int = 100_000, see
         Area-weighted samples drawn on the fitted surface, and on a target mesh.
     seed : int
         Sampling seed.
+    exact : callable, optional
+        For a point set drawn from a surface known in closed form:
+        ``exact(X)`` gives the distances of points ``(s, 3)`` to that
+        surface, used for ``s2p`` instead of the distance to the nearest
+        target point (which grows with the spacing of the points, not with
+        the error of the fit). See :func:`mi_loop.datasets.torus_distance`.
 
     Returns
     -------
@@ -80,7 +87,7 @@ def two_sided(V_fit, F_fit, target, F_target=None, n_samples: int = 100_000, see
     S_fit = sample_surface(V_fit, F_fit, n_samples, seed)[0]
     if F_target is None:
         P_tgt = target
-        d_s2p = cKDTree(target).query(S_fit)[0]
+        d_s2p = cKDTree(target).query(S_fit)[0] if exact is None else np.asarray(exact(S_fit), dtype=np.float64)
     else:
         target, F_target = check_triangles(target, F_target, "two_sided", "target")
         diag = float(np.linalg.norm(np.ptp(target[np.unique(F_target)], axis=0)))

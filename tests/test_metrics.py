@@ -192,3 +192,18 @@ def test_drift_follows_the_barycentric_point_of_a_deforming_mesh():
     assert d["mean"] == pytest.approx(0.05 / diag, rel=1e-9) and d["p95"] == pytest.approx(0.05 / diag, rel=1e-9)
     with pytest.raises(ValueError, match=r"^drift\(\): expected 40 points \(as attached\), got 39$"):
         drift(on[:39], a, Vt)
+
+
+def test_two_sided_exact_measures_the_surface_not_the_spacing_of_its_points():
+    from mi_loop import datasets
+
+    V, F = datasets.torus(256, 96)         # vertices on the torus; sags 1.4 (1 - cos pi/256) + 0.4 (1 - cos pi/96)
+    clean = datasets.noisy_torus_points(2000, noise=0.0, outliers=0.0)[2]
+    by_points = two_sided(V, F, clean, n_samples=20_000)
+    exact = two_sided(V, F, clean, n_samples=20_000, exact=datasets.torus_distance)
+    assert exact["p2s_mean"] == by_points["p2s_mean"]                  # the other direction is unchanged
+    assert exact["s2p_max"] * exact["diagonal"] < 3.2e-4                # at most the two chord sags
+    assert by_points["s2p_mean"] > 20 * exact["s2p_mean"]               # 2000 points: spacing dominates
+    R, r = 1.0, 0.4
+    X = np.array([[R + r, 0, 0], [0, R - r, 0], [0, 0, 0], [0, 2.0, 1.0]])
+    np.testing.assert_allclose(datasets.torus_distance(X), [0, 0, R - r, np.hypot(1.0, 1.0) - r], atol=1e-15)

@@ -14,7 +14,10 @@ the surface; for a mesh input ``input_self_intersecting_pct``, the same of the
 input), ``template`` (its source; for ``--template`` the
 polygons split into triangles and its size and offset relative to the data),
 ``final_energy``, ``machine``, ``variant``; with ``--demo`` also
-``metrics_clean`` (the same distances to the noise-free torus).
+``metrics_clean`` (the same distances to the noise-free torus: from its
+points to the limit surface, and from the limit surface to the torus itself,
+in closed form), and always ``noise`` (the noise level of the data against its
+point spacing, which sets the ARAP weight unless ``--alpha`` is given).
 """
 from __future__ import annotations
 
@@ -54,7 +57,8 @@ def _load(input: Path | None, log):
 
 def _stage_line(options: FitOptions) -> str:
     """The terms actually on, with their weights: ``IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold``."""
-    parts = [name if weight is None else f"{getattr(options, weight):g} x {name}"
+    parts = [name if weight is None else f"{name} (weight chosen for the noise)"
+             if getattr(options, weight) is None else f"{getattr(options, weight):g} x {name}"
              for name, weight in _TERM_WEIGHTS.items() if name in options.terms]
     return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}"
 
@@ -73,6 +77,9 @@ def _fit(P, N, template, options: FitOptions, log, mesh=None):
                 f"above {tinfo['feature_angle']:g} degrees), {tinfo['creases']} crease edges on the control mesh")
     elif options.features == "auto" and mesh is not None:
         log.say("sharp features: none found (no feature curve of at least 5 % of the diagonal)")
+    noise = result.info["noise"]
+    log.say(f"noise: {noise['sigma_diagonal']:.2e} of the diagonal, {noise['ratio']:.2f} x the point spacing; "
+            f"ARAP weight {result.params['alpha']:g} ({noise['alpha']})")
     n, converged = result.params["iterations"], result.converged
     how = (f"converged after {n} iterations (best energy improved by less than {options.tolerance:g})"
            if converged else f"stopped at the iteration cap ({n}) before converging; raise --iterations")
@@ -92,7 +99,9 @@ def _measure(result, target, P, clean, seed, log):
             f"RMS {metrics['rms']:.2e}, Hausdorff {metrics['hausdorff']:.2e}")
     metrics_clean = None
     if clean is not None:
-        metrics_clean = two_sided(V_lim, F_lim, clean, seed=seed)
+        from mi_loop.datasets import torus_distance
+
+        metrics_clean = two_sided(V_lim, F_lim, clean, seed=seed, exact=torus_distance)
         log.say(f"distance to the clean torus (without noise and outliers): mean "
                 f"{metrics_clean['mean']:.2e}, RMS {metrics_clean['rms']:.2e}, "
                 f"Hausdorff {metrics_clean['hausdorff']:.2e}")
@@ -133,6 +142,7 @@ def _report(input, info, result, converged, metrics, metrics_clean, template_inf
     report = {"input": str(input) if input is not None else info["source"], "input_info": info,
               "params": result.params, "converged": converged, "timings_s": result.timings,
               "metrics": metrics, "template": template_info or result.info["template"],
+              "noise": result.info["noise"],
               "machine": platform.node(), "variant": variant,
               "final_energy": {k: result.history[k][-1] for k in ("imls", "cover", "arap", "fold", "total")}}
     if metrics_clean is not None:

@@ -127,10 +127,12 @@ class FitOptions:
     ----------
     n_vertices : int
         Control vertices of the automatic template (ignored with a template), >= 4.
-    alpha : float
-        ARAP weight in ``E = mean f^2 + cover E_cover + alpha E_arap / n``. On
-        the bunny and fandisk benchmarks 0.001 fits closer than the thesis's
-        0.01 (which suits its differently normalised sums); raise it for noisy data.
+    alpha : float or None
+        ARAP weight in ``E = mean f^2 + cover E_cover + alpha E_arap / n``;
+        None (default): 0.001 on clean data (the closest fits on the bunny and
+        fandisk benchmarks), and on noisy data the best of 0.001 ... 1 on
+        points held out of the fit (:mod:`mi_loop.fitting.noise`,
+        :mod:`mi_loop.fitting.selection`).
     h0 : float or None
         IMLS support radius in the unit box; None: from the point spacing.
     samples : {'vertices', 'level1', 'random'}
@@ -162,7 +164,7 @@ class FitOptions:
     """
 
     n_vertices: int = N_VERTICES
-    alpha: float = 0.001
+    alpha: float | None = None
     h0: float | None = None
     samples: str = SAMPLES
     max_iterations: int = 400
@@ -173,7 +175,8 @@ class FitOptions:
     features: str = "auto"
 
     def __post_init__(self):
-        _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": WEIGHT, "fold": WEIGHT,
+        _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": (lambda v: v is None or _weight(v), WEIGHT[1]),
+                      "fold": WEIGHT,
                       "h0": (lambda v: v is None or _positive_real(v), "a finite number > 0 (or None: automatic)"),
                       "samples": SAMPLES_RULE, "max_iterations": COUNT, "tolerance": WEIGHT,
                       "cover": WEIGHT, "seed": SEED, "features": FEATURES_RULE})
@@ -181,7 +184,8 @@ class FitOptions:
     @property
     def terms(self) -> list:
         """Names of the energy terms that are on, largest weight first where it is fixed."""
-        return (["IMLS"] + (["coverage"] if self.cover > 0 else []) + (["ARAP"] if self.alpha > 0 else [])
+        arap = self.alpha is None or self.alpha > 0
+        return (["IMLS"] + (["coverage"] if self.cover > 0 else []) + (["ARAP"] if arap else [])
                 + (["fold"] if self.fold > 0 else []))
 
 

@@ -11,9 +11,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mi_loop.errors import FitError
+from mi_loop.fitting.noise import ALPHA_CLEAN, RATIO_CLEAN, noise_estimate, template_options
 from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, OptionError
+from mi_loop.fitting.selection import ALPHAS, MIN_POINTS, held_out_split, select_alpha
 from mi_loop.mesh.checks import check_oriented_points
 from mi_loop.mesh.geometry import mean_edge_length
+from mi_loop.mesh.sampling import surface_distances
 from mi_loop.mesh.topology import validate_mesh
 from mi_loop.subdiv.masks import limit_mesh, vertex_samples
 from mi_loop.subdiv.tessellation import tessellate
@@ -26,6 +29,8 @@ FOLD_LEVEL = 2
 FOLD_COSINE = 0.5
 #: Data normals averaged into each reference normal.
 FOLD_NEIGHBOURS = 8
+#: Tessellation level of the limit surface measured against held-out points (selection of ``alpha``).
+SELECTION_LEVEL = 2
 
 
 @dataclass
@@ -84,7 +89,11 @@ class FitResult:
     params : dict
         Parameters actually used (after automatic choices).
     info : dict
-        What the template was built from (``info["template"]``).
+        What the template was built from (``info["template"]``) and the noise
+        level of the data (``info["noise"]``: ``sigma`` and ``spacing`` in the
+        data's units, their ``ratio``, ``sigma_diagonal``, ``alpha``: whether
+        the weight was given, the clean-data one or selected, and then
+        ``selection``: the candidates tried and their held-out distances).
     converged : bool
         True when a stopping rule ended the loop (no more relative improvement
         than ``tolerance``); False when it ran into ``max_iterations``.
@@ -187,8 +196,12 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         (for feature detection).
     creases : (c, 2) int array, optional
         Infinitely sharp crease edges of ``template``.
-    alpha : float
-        ARAP weight (default 0.001; raise it for noisy data).
+    alpha : float, optional
+        ARAP weight; automatic by default: 0.001 on clean data (noise below a
+        tenth of the point spacing, :mod:`mi_loop.fitting.noise`), otherwise
+        the best of 0.001, 0.01, 0.1, 1 on a tenth of the points held out of
+        the fit (:mod:`mi_loop.fitting.selection`); ``info['noise']`` says
+        which and what was measured.
     h0 : float, optional
         IMLS support radius in the unit box; automatic from the point spacing.
     samples : {'vertices', 'level1', 'random'}
@@ -252,6 +265,13 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     Pn = norm.forward(P)
 
     t = time.perf_counter()
+    noise = noise_estimate(Pn)
+    noise = {"sigma": noise["sigma"] * norm.scale, "spacing": noise["spacing"] * norm.scale,
+             "ratio": noise["ratio"], "sigma_diagonal": noise["sigma_diagonal"], "estimated": noise["estimated"],
+             "alpha": "given" if alpha is not None else "clean data"}
+    timings["noise"] = time.perf_counter() - t
+
+    t = time.perf_counter()
     found = None
     if template is None and mesh is not None and features == "auto":
         from mi_loop.fitting.template import feature_template
@@ -265,7 +285,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     elif template is None:
         from mi_loop.fitting.template import make_template
 
-        V0, F, tinfo = make_template(Pn, N, n_vertices, seed=seed)
+        V0, F, tinfo = make_template(Pn, N, n_vertices, seed=seed, **template_options(noise["ratio"]))
         creases = None
     else:
         V0, F = template
@@ -287,13 +307,23 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     imls = IMLS(Pn, N, h0=h0)
     coverage = Coverage(Pn, N, tree=imls.tree) if cover > 0 else None
     arap = ARAP(V0, F)
-    alpha = float(alpha)
     timings["energies"] = time.perf_counter() - t
 
+    def fit_with(energies, a, step):
+        weights = {"alpha": a, "cover": cover if energies[1] is not None else 0.0, "fold": float(fold)}
+        return _optimise(op, fold_op, *energies[:1], arap, energies[1], V0, weights, max_iterations, tolerance,
+                         step)
+
     t = time.perf_counter()
-    weights = {"alpha": alpha, "cover": cover if coverage is not None else 0.0, "fold": float(fold)}
-    V, history, converged = _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, tolerance,
-                                      progress)
+    if alpha is None and noise["ratio"] > RATIO_CLEAN and len(Pn) >= MIN_POINTS:
+        alpha, noise["selection"] = _select(Pn, N, F, creases, h0, cover, fit_with, seed, progress)
+        noise["alpha"] = f"selected on {noise['selection']['held_out_points']} held-out points"
+        timings["selection"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if progress is not None:
+            shown, progress = progress, (lambda i, n, E: shown(len(ALPHAS) * n + i, (len(ALPHAS) + 1) * n, E))
+    alpha = ALPHA_CLEAN if alpha is None else float(alpha)
+    V, history, converged = fit_with((imls, coverage), alpha, progress)
     timings["optimisation"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
     params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
@@ -302,7 +332,26 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
               "iterations": len(history["total"]), "normalisation_scale": norm.scale,
               "features": features, "n_creases": 0 if creases is None else int(len(creases))}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
-                     {"template": tinfo}, converged, None if creases is None else np.asarray(creases))
+                     {"template": tinfo, "noise": noise}, converged,
+                     None if creases is None else np.asarray(creases))
+
+
+def _select(Pn, N, F, creases, h0, cover, fit_with, seed, progress):
+    """The ARAP weight whose fit to nine tenths of the points lies closest to the other tenth; ``(alpha, tried)``."""
+    from mi_loop.energies.coverage import Coverage
+    from mi_loop.energies.imls import IMLS
+
+    held = held_out_split(len(Pn), seed)
+    imls = IMLS(Pn[~held], N[~held], h0=h0)
+    energies = (imls, Coverage(Pn[~held], N[~held], tree=imls.tree) if cover > 0 else None)
+
+    def held_out_error(V):
+        return surface_distances(*limit_mesh(V, F, SELECTION_LEVEL, creases=creases)[:2], Pn[held]).mean()
+
+    # one bar for the candidates and the final fit: the candidates' share, then the final fit's
+    step = None if progress is None else (lambda i, n, E: progress(i, n + n // len(ALPHAS), E))
+    alpha, _, tried = select_alpha(lambda a, s: fit_with(energies, a, s), held_out_error, progress=step)
+    return alpha, {**tried, "held_out_points": int(held.sum())}
 
 
 def _reference_normals(imls, Q):

@@ -77,7 +77,8 @@ def poisson_depth(n_vertices: int) -> int:
 
 
 def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0,
-                  min_angle: float = 10.0, threads: int = 1, max_points: int = 500_000):
+                  min_angle: float = 10.0, threads: int = 1, max_points: int = 500_000, *,
+                  point_weight: float = 4.0, samples_per_node: float = 1.5):
     """Reconstruct a closed manifold triangle control mesh with about ``n_vertices`` vertices.
 
     Parameters
@@ -97,6 +98,11 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     threads : int
         Poisson threads. One is the default: on these 2-core machines two
         threads took 27 s instead of 1.1 s (bunny scan, depth 6), idle or not.
+    point_weight, samples_per_node : float, optional
+        Screened Poisson's screening weight and points per octree node
+        (pymeshlab's defaults, 4 and 1.5). Noisy data wants a smoother
+        membrane: :func:`mi_loop.fitting.noise.template_options` lowers the
+        first and raises the second with the noise level.
     max_points : int
         Inputs larger than this are randomly subsampled before Poisson.
 
@@ -138,7 +144,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     if len(P) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(P), max_points, replace=False))
         P, N = P[keep], N[keep]
-    Vp, Fp, n_comp = _poisson(P, N, depth, threads)
+    Vp, Fp, n_comp = _poisson(P, N, depth, threads, point_weight, samples_per_node)
     t1 = time.perf_counter()
     if n_vertices > len(Vp) // 2:
         _fail(f"n_vertices={n_vertices} is more than half the {len(Vp)} vertices of the depth-{depth} "
@@ -151,7 +157,8 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     V, F, _ = validate_mesh(V, F, "make_template")
     t3 = time.perf_counter()
     chi, n_boundary = euler_characteristic(len(V), F)
-    info = {"depth": depth, "n_points": len(P), "poisson_vertices": len(Vp), "poisson_components": n_comp,
+    info = {"depth": depth, "point_weight": float(point_weight), "samples_per_node": float(samples_per_node),
+            "n_points": len(P), "poisson_vertices": len(Vp), "poisson_components": n_comp,
             "vertices": len(V), "faces": len(F), "genus": (2 - chi) // 2 if n_boundary == 0 else None,
             "boundary_edges": n_boundary,
             "min_angle": stats["min_angle"], "flips": stats["flips"], "collapses": stats["collapses"],
@@ -268,13 +275,15 @@ def _check_inputs(P, N, n_vertices, depth, min_angle, max_points):
     return P, N / np.linalg.norm(N, axis=1, keepdims=True), int(n_vertices), int(depth)
 
 
-def _poisson(P, N, depth, threads):
+def _poisson(P, N, depth, threads, point_weight=4.0, samples_per_node=1.5):
     """Screened Poisson surface; returns the largest component and the component count."""
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=P, v_normals_matrix=N))
-    ms.generate_surface_reconstruction_screened_poisson(depth=depth, preclean=True, threads=int(threads))
+    ms.generate_surface_reconstruction_screened_poisson(depth=depth, preclean=True, threads=int(threads),
+                                                        pointweight=float(point_weight),
+                                                        samplespernode=float(samples_per_node))
     mesh = ms.current_mesh()
     V = np.asarray(mesh.vertex_matrix(), dtype=np.float64)
     F = np.asarray(mesh.face_matrix(), dtype=np.int64)

@@ -41,7 +41,16 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     assert report["input_info"]["n_points"] == 20200                         # 20000 + 1 % outliers
     params = report["params"]
     assert params["max_iterations"] == 60 and 1 <= params["iterations"] <= 60
-    assert params["samples"] == "level1" and params["alpha"] == 0.001 and params["seed"] == 0
+    assert params["samples"] == "level1" and params["seed"] == 0
+    # the demo's noise is known (sigma 0.5 % of the diagonal): estimated, and the ARAP weight follows it
+    noise = report["noise"]
+    assert noise["estimated"] and abs(noise["sigma_diagonal"] / 0.005 - 1) < 0.2, noise
+    held = re.fullmatch(r"selected on (\d+) held-out points", noise["alpha"])
+    assert held and abs(int(held.group(1)) - 2020) < 150, noise["alpha"]                # a tenth of the points
+    selection = noise["selection"]
+    assert selection["alphas"] == [0.001, 0.01, 0.1, 1.0][:len(selection["alphas"])]
+    best = int(np.argmin(selection["held_out_mean"]))
+    assert params["alpha"] == selection["alphas"][best] > 0.001                          # not the clean weight
     assert abs(params["n_vertices"] - 100) <= 10
     assert set(report["timings_s"]) >= {"template", "operator", "energies", "optimisation", "total",
                                          "metrics", "pictures"}
@@ -56,7 +65,10 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
 
     # the stage line names the terms that are on; the end says whether the fit converged
     err = captured.err
-    assert "fitting: template, limit operator, then Adam on IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold" in err
+    assert ("fitting: template, limit operator, then Adam on IMLS + 3 x coverage + ARAP (weight chosen for the "
+            "noise) + 0.01 x fold") in err
+    assert re.search(r"noise: \d\.\d\de-03 of the diagonal, 0\.\d\d x the point spacing; ARAP weight \S+ "
+                     r"\(selected on \d+ held-out points\)", err), err
     # folds: measured and written to report.json, and a warning line whenever one is non-zero
     assert 0 <= metrics["flipped_area_pct"] <= 100 and 0 <= metrics["self_intersecting_pct"] <= 100
     assert metrics["self_intersecting_faces"] == round(metrics["self_intersecting_pct"] / 100 * 64 * params["n_faces"])
@@ -385,9 +397,10 @@ def test_the_stage_line_names_the_terms_that_are_on():
     from mi_loop.fitting.options import FitOptions
 
     head = "fitting: template, limit operator, then Adam on "
-    assert _stage_line(FitOptions()) == head + "IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold"
-    assert _stage_line(FitOptions(fold=0.0)) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
-    assert _stage_line(FitOptions(cover=0.0, fold=0.0)) == head + "IMLS + 0.001 x ARAP"
+    assert _stage_line(FitOptions()) == head + "IMLS + 3 x coverage + ARAP (weight chosen for the noise) + 0.01 x fold"
+    assert _stage_line(FitOptions(alpha=0.001)) == head + "IMLS + 3 x coverage + 0.001 x ARAP + 0.01 x fold"
+    assert _stage_line(FitOptions(alpha=0.001, fold=0.0)) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
+    assert _stage_line(FitOptions(alpha=0.5, cover=0.0, fold=0.0)) == head + "IMLS + 0.5 x ARAP"
     assert _stage_line(FitOptions(alpha=0.0, cover=1.5, fold=0.1)) == head + "IMLS + 1.5 x coverage + 0.1 x fold"
 
 

@@ -34,7 +34,7 @@ def small_template():
 
 def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
     P, N, clean = datasets.noisy_torus_points(4000, seed=1)
-    result = fit(P, N, n_vertices=120, max_iterations=100)
+    result = fit(P, N, n_vertices=120, max_iterations=150)
     assert isinstance(result, FitResult)
     assert result.V.shape == result.V_template.shape and result.F.shape[1] == 3
     assert abs(len(result.V) - 120) <= 12                     # "within a few percent" of the request
@@ -51,7 +51,7 @@ def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
     total = result.history["total"]
     assert total[-1] < total[0]
     n_it = result.params["iterations"]
-    assert 1 <= n_it < 100                                      # stopped by the schedule, not the cap
+    assert 1 <= n_it < 150                                      # stopped by the schedule, not the cap
     assert all(len(result.history[k]) == n_it for k in ("imls", "cover", "arap", "fold", "total", "lr"))
     parts = np.sum([result.history[k] for k in ("imls", "cover", "arap", "fold")], axis=0)
     np.testing.assert_allclose(parts, total, rtol=1e-5)
