@@ -22,8 +22,8 @@ __all__ = ["COLUMNS", "FIT_METRICS", "SEQUENCE_METRICS", "SEQUENCE_OUTPUTS", "SU
 #: The first columns of ``summary.csv``; ``status`` is ``done``, ``failed`` or ``skipped``.
 COLUMNS = ("input", "status", "seconds", "worker", "error")
 #: Then, for fits: ``report.json``'s metrics, iterations and convergence.
-FIT_METRICS = ("mean", "rms", "hausdorff", "p2s_mean", "p2s_max", "s2p_mean", "s2p_max", "iterations",
-               "converged")
+FIT_METRICS = ("mean", "rms", "hausdorff", "p2s_mean", "p2s_max", "s2p_mean", "s2p_max", "flipped_area_pct",
+               "self_intersecting_pct", "iterations", "converged")
 #: Or, for sequences: frames fitted and the last frame's row of ``metrics.csv``.
 SEQUENCE_METRICS = ("frames", "last_frame", "mean", "rms", "hausdorff", "flipped_pct", "drift_mean", "drift_p95")
 #: The files a finished ``fit-sequence`` has written besides ``control/``, ``limit/`` and ``state/``.

@@ -102,6 +102,7 @@ def test_the_summary_has_a_row_per_input_with_its_worker_error_and_metrics(first
     out, _ = first_run
     header, rows = read_summary(out)
     assert header == [*COLUMNS, *FIT_METRICS]
+    assert {"flipped_area_pct", "self_intersecting_pct"} <= set(header)          # the folds of every fit too
     assert [r["input"] for r in rows] == [str(inputs / n) for n in ("a.xyz", "b.xyz", "bad.ply")]
     assert [r["status"] for r in rows] == ["done", "done", "failed"]
     assert all(r["worker"].startswith("tcp://") for r in rows)
