@@ -7,7 +7,8 @@
   :func:`fibonacci_points`, :func:`torus_cloud`, :func:`torus_error`, :func:`write_xyz`,
   :func:`bunny_in_the_scans_frame`;
 - limit surfaces: :func:`limit_surface`, :func:`bbox_diagonal`;
-- NumPy and Dr.Jit: :func:`point3f`, :func:`flat`, :func:`as_numpy`.
+- NumPy and Dr.Jit: :func:`point3f`, :func:`flat`, :func:`as_numpy`;
+- GLB files read without mi_loop, the layout rules checked: :func:`parse_glb`, :func:`check_bounds`.
 
 The named meshes of the subdivision oracles are in ``meshes.py``.
 Nothing here imports drjit or mitsuba at import time (``conftest.py`` imports
@@ -399,3 +400,73 @@ def as_numpy(x) -> np.ndarray:
     """
     a = np.array(x, dtype=np.float64)
     return a.reshape(-1, 3) if a.ndim == 1 else a.T
+
+# ---------------------------------------------------------------- GLB files
+
+#: componentType -> (NumPy dtype, bytes); type -> components (glTF 2.0, section 3.6.2).
+COMPONENTS = {5125: ("<u4", 4), 5126: ("<f4", 4)}
+WIDTHS = {"SCALAR": 1, "VEC3": 3}
+
+
+def parse_glb(path):
+    """Read a GLB file with the specification's layout rules checked; return ``(doc, read)``.
+
+    Written from section 4.4 of the glTF 2.0 specification, without mi_loop's reader: magic,
+    version, total length, two chunks of 4-byte multiple lengths, 4-byte aligned buffer views
+    inside the buffer, tightly packed accessors.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        A ``.glb`` file.
+
+    Returns
+    -------
+    doc : dict
+        The JSON chunk.
+    read : callable
+        ``read(i)``: accessor ``i`` (float32 or uint32) as a ``(count, width)`` NumPy array.
+    """
+    import json
+    import struct
+
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert (magic, version, length) == (b"glTF", 2, len(data))
+    json_length, json_type = struct.unpack_from("<II", data, 12)
+    assert json_type == 0x4E4F534A and json_length % 4 == 0
+    text = data[20:20 + json_length]
+    assert text.rstrip(b" ") == text.rstrip()                      # padded with spaces only
+    doc = json.loads(text)
+    bin_length, bin_type = struct.unpack_from("<II", data, 20 + json_length)
+    assert bin_type == 0x004E4942 and bin_length % 4 == 0
+    assert 28 + json_length + bin_length == len(data)               # two chunks, nothing else
+    chunk = data[28 + json_length:]
+    assert doc["buffers"] == [{"byteLength": bin_length}] or doc["buffers"][0]["byteLength"] <= bin_length
+    for view in doc["bufferViews"]:
+        assert view["buffer"] == 0 and view["byteOffset"] % 4 == 0
+        assert view["byteOffset"] + view["byteLength"] <= doc["buffers"][0]["byteLength"]
+
+    def read(i):
+        a = doc["accessors"][i]
+        dtype, size = COMPONENTS[a["componentType"]]
+        view = doc["bufferViews"][a["bufferView"]]
+        assert a["count"] * size * WIDTHS[a["type"]] == view["byteLength"]      # tightly packed
+        start = view["byteOffset"] + a.get("byteOffset", 0)
+        return np.frombuffer(chunk, dtype, a["count"] * WIDTHS[a["type"]], start).reshape(a["count"], -1)
+    return doc, read
+
+
+def check_bounds(doc, read, i):
+    """Check that accessor ``i``'s ``min`` and ``max`` are the bounds of its values, as the specification requires.
+
+    Parameters
+    ----------
+    doc, read
+        :func:`parse_glb`'s result.
+    i : int
+        The accessor.
+    """
+    a, values = doc["accessors"][i], read(i)
+    np.testing.assert_array_equal(a["min"], values.min(axis=0))
+    np.testing.assert_array_equal(a["max"], values.max(axis=0))

@@ -59,7 +59,8 @@ class Task:
     options : FitOptions or SequenceOptions
         The fit's options; a :class:`~mi_loop.fitting.options.SequenceOptions` makes it a sequence.
     settings : dict
-        The job's other keywords: ``template`` (absolute), ``variant`` (and ``frames`` for sequences).
+        The job's other keywords: ``template`` (absolute), ``variant``, ``view_level`` (and ``frames``
+        for sequences).
     label : str
         The input as given, for ``summary.csv`` (default: ``input``).
     """
@@ -301,7 +302,8 @@ def _collect(client, todo: list, names: list, rows: dict, summary: Path, shown: 
 
 
 def run(inputs, output, options, *, scheduler: str | None = None, workers: int | None = None,
-        template: Path | None = None, variant: str = DEFAULT_VARIANT, frames: slice | None = None, log) -> Path:
+        template: Path | None = None, variant: str = DEFAULT_VARIANT, frames: slice | None = None, log,
+        view_level: int | None = None) -> Path:
     """Run ``mi-loop fit-batch``: fit every input on a Dask cluster; return the path of ``summary.csv``.
 
     Parameters
@@ -324,6 +326,8 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
     frames : slice, optional
         The frames of every sequence to fit (``--frames``; sequences only).
     log : mi_loop.app.progress.Reporter
+    view_level : int, optional
+        Tessellation level of every ``limit.glb`` / ``sequence.glb`` (``--view-level``); default the jobs'.
 
     Returns
     -------
@@ -350,6 +354,8 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
     if scheduler is not None:
         scheduler_address(scheduler)
     settings = {"template": None if template is None else Path(template).absolute(), "variant": variant}
+    if view_level is not None:
+        settings["view_level"] = view_level
     if sequence:
         settings["frames"] = frames
     created = io.first_missing_ancestor(output)

@@ -27,7 +27,7 @@ FIT_METRICS = ("mean", "rms", "hausdorff", "p2s_mean", "p2s_max", "s2p_mean", "s
 #: Or, for sequences: frames fitted and the last frame's row of ``metrics.csv``.
 SEQUENCE_METRICS = ("frames", "last_frame", "mean", "rms", "hausdorff", "flipped_pct", "drift_mean", "drift_p95")
 #: The files a finished ``fit-sequence`` has written besides ``control/``, ``limit/`` and ``state/``.
-SEQUENCE_OUTPUTS = ("sequence.json", "metrics.csv", "drift.png", "strip.png")
+SEQUENCE_OUTPUTS = ("sequence.json", "metrics.csv", "drift.png", "strip.png", "sequence.glb")
 #: The summary's file name in OUTDIR.
 SUMMARY = "summary.csv"
 

@@ -11,11 +11,12 @@ Subcommands
     Write a procedural control mesh (``blob``, ``icosphere``, ``torus``).
 ``mi-loop fit INPUT -o OUTDIR [--vertices N | --template PATH] ...``
     Fit a Loop control mesh to a point cloud or mesh (IMLS + coverage + ARAP);
-    writes ``control.ply``, ``limit.ply``, ``report.json``, ``loss.png``, ``render.png``.
+    writes ``control.ply``, ``limit.ply``, ``limit.glb``, ``report.json``, ``loss.png``, ``render.png``.
 ``mi-loop fit-sequence FRAMES... -o OUTDIR [--template PATH | --vertices N] ...``
     Fit one control mesh frame by frame to a sequence (IMLS + coverage + ARAP
     + multi-view differentiable rendering); writes ``control/``, ``limit/``,
-    ``state/``, ``sequence.json``, ``metrics.csv``, ``drift.png``, ``strip.png``;
+    ``state/``, ``sequence.json``, ``metrics.csv``, ``drift.png``, ``strip.png``,
+    ``sequence.glb`` (the frames as morph targets, played at ``--fps``);
     ``--resume`` continues an interrupted run bit for bit.
 ``mi-loop fit-batch INPUTS... -o OUTDIR [--scheduler ADDRESS | --workers N] [--sequences] ...``
     Fit many inputs on a Dask cluster, each like ``fit`` (or ``fit-sequence``)
@@ -24,11 +25,15 @@ Subcommands
 ``mi-loop fit-images transforms.json -o OUTDIR [--vertices N] [--init sphere|hull|MESH] ...``
     Fit a Loop control mesh and its per-vertex albedo to calibrated photos
     (silhouettes and shading through Mitsuba's differentiable renderer,
-    coarse to fine); writes ``control.ply``, ``limit.ply``, ``report.json``,
+    coarse to fine); writes ``control.ply``, ``limit.ply``, ``limit.glb``, ``report.json``,
     ``progress.png``, ``loss.png``.
 ``mi-loop compare FITTED TARGET``
     Two-sided distances and the Neural Parametric Surfaces metrics between
     a control mesh's limit surface (or any mesh) and a target file.
+``mi-loop export OUT [--format glb|obj|ply] [--level L] [-o PATH] [--fps F]``
+    Write the limit surface of a result directory of ``fit``, ``fit-images``
+    or ``fit-sequence`` at a tessellation level (a sequence: one animated GLB,
+    or one OBJ / PLY per frame); default into ``OUT/export/``.
 ``mi-loop --version``
     mi_loop's version and those of the installed Mitsuba and Dr.Jit.
 
@@ -153,7 +158,8 @@ def _fit(args, log) -> None:
         raise ValueError(expected("fit INPUT", "an input file or --demo (one of them)",
                                   "both" if args.demo else "neither"))
     check_variant(args.variant, "fit")
-    fit_job.run(args.input, args.output, options, template=args.template, variant=args.variant, log=log)
+    fit_job.run(args.input, args.output, options, template=args.template, variant=args.variant, log=log,
+                view_level=args.view_level)
 
 
 def _fit_sequence(args, log) -> None:
@@ -161,12 +167,11 @@ def _fit_sequence(args, log) -> None:
 
     options = sequence_options(args)
     check_variant(args.variant, "fit-sequence")
-    if args.animation is None and args.fps != 24.0:
-        raise ValueError(expected("fit-sequence --fps", "--animation (the frame rate of a baked animation)",
-                                  f"--fps {args.fps:g} without it"))
+    _check_fps(args.fps, "fit-sequence")
     sequence_job.run(args.frames, args.output, options, template=args.template, resume=args.resume,
                      variant=args.variant, log=log, images=args.images, emitters=args.emitters,
-                     reference=args.reference, frames=args.frame_range, animation=args.animation, fps=args.fps)
+                     reference=args.reference, frames=args.frame_range, animation=args.animation, fps=args.fps,
+                     view_level=args.view_level)
 
 
 def _fit_batch(args, log) -> None:
@@ -175,7 +180,8 @@ def _fit_batch(args, log) -> None:
     options = sequence_options(args, "fit-batch") if args.sequences else fit_options(args, "fit-batch")
     check_variant(args.variant, "fit-batch")
     batch_job.run(args.inputs, args.output, options, scheduler=args.scheduler, workers=args.workers,
-                  template=args.template, variant=args.variant, frames=getattr(args, "frame_range", None), log=log)
+                  template=args.template, variant=args.variant, frames=getattr(args, "frame_range", None), log=log,
+                  view_level=args.view_level)
 
 
 def _fit_images(args, log) -> None:
@@ -190,7 +196,7 @@ def _fit_images(args, log) -> None:
                                   f"'{args.init}'"))
     check_variant(args.variant, "fit-images")
     images_job.run(args.capture, args.output, options, init=init, emitters=args.emitters, variant=args.variant,
-                   log=log)
+                   log=log, view_level=args.view_level)
 
 
 def _compare(args, log) -> None:
@@ -207,6 +213,20 @@ def _compare(args, log) -> None:
         io.write_text(args.json, text + "\n")
 
 
+def _check_fps(fps, command: str) -> None:
+    import math
+
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise ValueError(expected(f"{command} --fps", "a finite number > 0", fps))
+
+
+def _export(args, log) -> None:
+    from mi_loop.app import export_job
+
+    _check_fps(args.fps, "export")
+    export_job.run(args.result, args.fmt, level=args.level, output=args.output, fps=args.fps, log=log)
+
+
 def _control(args, log) -> None:
     io.ensure_writable_dir(args.output.parent)
     V, F = datasets.control_mesh(args.name)
@@ -214,7 +234,7 @@ def _control(args, log) -> None:
 
 
 COMMANDS = {"demo": _demo, "render": _render_file, "control": _control, "fit": _fit, "compare": _compare,
-            "fit-sequence": _fit_sequence, "fit-batch": _fit_batch, "fit-images": _fit_images}
+            "fit-sequence": _fit_sequence, "fit-batch": _fit_batch, "fit-images": _fit_images, "export": _export}
 
 
 def _traceback_wanted(args) -> bool:

@@ -4,6 +4,10 @@ Everything is computed before the first output file is written; the files are
 written into a staging directory and moved into place together, so a failed or
 interrupted run leaves no partial output (and removes the directories it created).
 
+``limit.ply`` is the limit surface at level 3 with exact limit normals;
+``limit.glb`` the same surface at the viewer's level (``--view-level``,
+default 2) as glTF 2.0 binary, which Blender, three.js and other viewers open.
+
 ``report.json`` holds ``input`` and ``input_info`` (what was read, whether
 normals were estimated), ``params`` (the options actually used), ``converged``,
 ``timings_s``, ``metrics`` (two-sided distances to the data, relative to its
@@ -28,13 +32,14 @@ from dataclasses import asdict
 from pathlib import Path
 
 from mi_loop import io
+from mi_loop.app.export_job import VIEW_LEVELS
 from mi_loop.fitting.options import FitOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
 __all__ = ["OUTPUTS", "run"]
 
 #: The files ``mi-loop fit`` writes into OUTDIR, in this order.
-OUTPUTS = ("control.ply", "limit.ply", "report.json", "loss.png", "render.png")
+OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "loss.png", "render.png")
 
 _TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha", "fold": "fold"}
 
@@ -153,7 +158,7 @@ def _report(input, info, result, converged, metrics, metrics_clean, template_inf
 
 
 def run(input: Path | None, output: Path, options: FitOptions, *, template: Path | None = None,
-        variant: str = DEFAULT_VARIANT, log) -> list:
+        variant: str = DEFAULT_VARIANT, log, view_level: int = VIEW_LEVELS["fit"]) -> list:
     """Run ``mi-loop fit``: fit ``input`` (None: the built-in noisy torus), write OUTDIR.
 
     Parameters
@@ -168,6 +173,8 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
     variant : str
         Mitsuba variant.
     log : mi_loop.app.progress.Reporter
+    view_level : int
+        Tessellation level of ``limit.glb`` (and of the report's viewer).
 
     Returns
     -------
@@ -190,6 +197,7 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
         mesh = target[1:] if target[0] == "mesh" and V_t is None else None
         result, converged = _fit(P, N, None if V_t is None else (V_t, F_t), options, log, mesh)
         metrics, metrics_clean, limit = _measure(result, target, P, clean, options.seed, log)
+        view = result.limit_mesh(view_level)          # (V, F, N) of the viewer: limit.glb (and the report)
         t = time.perf_counter()
         loss = loss_plot(result.history)
         render = side_by_side(target, result.V, result.F, creases=result.creases)
@@ -198,6 +206,7 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F, creases=result.creases)
             io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2])
+            io.write_glb(stage / "limit.glb", *view)
             io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
             io.write_png(stage / "loss.png", loss)
             io.write_png(stage / "render.png", render)

@@ -6,6 +6,8 @@ Outputs (written together at the end, nothing half-written):
   sRGB ``red green blue`` and float linear ``albedo_r albedo_g albedo_b``);
   a ``loop_subdiv`` shape reads both back;
 - ``limit.ply``: the limit surface at level 3 with exact limit normals and colours;
+- ``limit.glb``: the same at the viewer's level (``--view-level``, default 2) as
+  glTF 2.0 binary, the albedo as linear ``COLOR_0``;
 - ``report.json``: ``input``, ``params`` (the options), ``lighting``, ``stages``
   (control vertices, level, image size, iterations, time), ``views`` (each
   photo's loss at the start and at the end, at the finest resolution, mean
@@ -26,13 +28,14 @@ from pathlib import Path
 import numpy as np
 
 from mi_loop import io
+from mi_loop.app.export_job import VIEW_LEVELS, static_view
 from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
 __all__ = ["OUTPUTS", "run"]
 
 #: The files ``mi-loop fit-images`` writes into OUTDIR, in this order.
-OUTPUTS = ("control.ply", "limit.ply", "report.json", "progress.png", "loss.png")
+OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "progress.png", "loss.png")
 
 #: Views shown in ``progress.png``.
 SHOWN = 4
@@ -80,14 +83,12 @@ def _evaluate(result, views, emitters, options, log):
     return out, shown
 
 
-def _limit(V, F, albedo):
-    from mi_loop.subdiv.masks import limit_colors, limit_mesh
-
-    return (*limit_mesh(V, F, 3), limit_colors(albedo, F, 3))
+def _limit(V, F, albedo, level: int = 3):
+    return static_view(V, F, level, albedo=albedo)
 
 
 def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emitters: Path | None = None,
-        variant: str = DEFAULT_VARIANT, log) -> list:
+        variant: str = DEFAULT_VARIANT, log, view_level: int = VIEW_LEVELS["fit"]) -> list:
     """Run ``mi-loop fit-images``: fit a Loop surface and its albedo to a capture, write OUTDIR.
 
     Parameters
@@ -104,6 +105,8 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     variant : str
         Mitsuba variant.
     log : mi_loop.app.progress.Reporter
+    view_level : int
+        Tessellation level of ``limit.glb`` (and of the report's viewer).
 
     Returns
     -------
@@ -137,6 +140,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
         t = time.perf_counter()
         evaluation, shown = _evaluate(result, shot.views, lights, options, log)
         limit = _limit(result.V, result.F, result.albedo)
+        view = _limit(result.V, result.F, result.albedo, view_level)    # (V, F, N, colours): limit.glb, the report
         grid, loss = progress_grid(evaluation, shown), image_loss_plot(result.history)
         timings["report"] = time.perf_counter() - t
         report = {"input": str(capture), "params": asdict(options), "init": str(init or options.init),
@@ -149,6 +153,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F, colors=np.clip(result.albedo, 0, 1))
             io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2], colors=limit[3])
+            io.write_glb(stage / "limit.glb", *view)
             io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
             io.write_png(stage / "progress.png", grid)
             io.write_png(stage / "loss.png", loss)

@@ -14,6 +14,7 @@ from pathlib import Path
 from mi_loop import datasets
 from mi_loop.app.cluster import LOCAL_WORKERS
 from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
+from mi_loop.app.export_job import FORMATS, LIMIT_LEVELS, VIEW_LEVELS
 from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, ImageFitOptions, SequenceOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
@@ -133,6 +134,14 @@ def level(text: str) -> int:
     return value
 
 
+def _view_level(p, kind: str) -> None:
+    """``--view-level``: the tessellation of the GLB file and of the report's viewer (``kind``: fit or sequence)."""
+    glb, limit = ("limit.glb", "limit.ply") if kind == "fit" else ("sequence.glb", "limit/NNNN.ply")
+    p.add_argument("--view-level", type=level, metavar="L", default=VIEW_LEVELS[kind],
+                   help=f"tessellation level of {glb} and of the report's viewer, 4**L triangles per control "
+                        f"face (default %(default)s; {limit} has level {LIMIT_LEVELS[kind]})")
+
+
 def _render_options(p) -> None:
     p.add_argument("--level", type=level, default=3, help="4**level triangles per control face (default 3)")
     p.add_argument("--resolution", type=positive, default=256, help="image width and height (default 256)")
@@ -156,6 +165,7 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     _fit_options(p)
     p.add_argument("--demo", action="store_true", help="fit the built-in noisy torus point cloud (no input file)")
+    _view_level(p, "fit")
     _variant(p)
 
 
@@ -205,11 +215,12 @@ def _sequence_parser(sub, common) -> None:
     p.add_argument("--animation", metavar="NAME",
                    help="bake this animation of a skinned glTF/GLB into the frames")
     p.add_argument("--fps", type=float, default=24.0,
-                   help="frame rate of the baked --animation (default %(default)s)")
+                   help="frame rate of sequence.glb and of the baked --animation (default %(default)s)")
     _sequence_options(p)
     p.add_argument("--resume", action="store_true",
                    help="continue after the last finished frame, bit for bit as an uninterrupted run "
                         "(with the options stored in OUTDIR/sequence.json)")
+    _view_level(p, "sequence")
     _variant(p)
 
 
@@ -312,6 +323,7 @@ def _batch_parser(sub, common) -> None:
             _sequence_options(p)
         else:
             _fit_options(p)
+        _view_level(p, "sequence" if sequences else "fit")
         _variant(p)
         return p
 
@@ -375,6 +387,7 @@ def _images_parser(sub, common) -> None:
                    help="bit-reproducible runs: the reverse renders run on one thread (slower)")
     p.add_argument("--seed", type=int, default=o.seed,
                    help="random seed of the view order and the renders (default 0)")
+    _view_level(p, "fit")
     _variant(p)
 
 
@@ -399,6 +412,26 @@ def _compare_parser(sub, common) -> None:
     how.add_argument("--control", action="store_true",
                      help="measure FITTED's limit surface, however many vertices it has")
     p.add_argument("--json", type=Path, help="also write the numbers to this JSON file")
+
+
+def _export_parser(sub, common) -> None:
+    p = sub.add_parser("export", parents=[common], help="write a result's limit surface as GLB, OBJ or PLY",
+                       description="The limit surface of a result directory (of fit, fit-images or fit-sequence) "
+                                   "at a tessellation level: glb (a sequence as one mesh animated by morph "
+                                   "targets), obj, ply (a sequence: one file per frame, in a directory). Without "
+                                   "-o the files go to OUT/export/; the result's own files are never replaced.")
+    p.add_argument("result", type=Path, metavar="OUT", help="the output directory of fit, fit-images or fit-sequence")
+    p.add_argument("--format", dest="fmt", choices=FORMATS, default="glb", help="file format (default %(default)s)")
+    p.add_argument("--level", type=level, metavar="L",
+                   help=f"tessellation level, 4**L triangles per control face (default: glb {VIEW_LEVELS['fit']} "
+                        f"for fits and {VIEW_LEVELS['sequence']} for sequences, as limit.glb and sequence.glb; "
+                        f"obj and ply {LIMIT_LEVELS['fit']} and {LIMIT_LEVELS['sequence']}, as limit.ply and "
+                        "limit/NNNN.ply)")
+    p.add_argument("-o", "--output", type=Path, metavar="PATH",
+                   help="the file to write (its suffix the format's), or for a sequence's obj / ply frames a "
+                        "directory (default: in OUT/export/)")
+    p.add_argument("--fps", type=float,
+                   help="frame rate of a sequence's glb (default: the run's, from sequence.json, else 24)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -433,6 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     _batch_parser(sub, common)
     _images_parser(sub, common)
     _compare_parser(sub, common)
+    _export_parser(sub, common)
 
     control = sub.add_parser("control", parents=[common], help="write a procedural control mesh")
     control.add_argument("name", choices=sorted(datasets.CONTROL_MESHES))

@@ -48,8 +48,15 @@ Layout of OUTDIR (every path is printed on stdout as it is written):
       whether distances, folds and drift are measured against clean meshes in correspondence;
   ``variant``
       the Mitsuba variant of the run;
+  ``fps``
+      the frame rate of ``sequence.glb`` (``--fps``; ``--resume`` keeps it);
 - ``drift.png`` (per-frame error) and ``strip.png`` (target and fit for a few
-  frames), drawn when the run completes.
+  frames), drawn when the run completes;
+- ``sequence.glb``: every finished frame as one glTF 2.0 mesh in
+  correspondence, frame 0 with a morph target per frame, animated at ``fps``
+  (Blender and three.js play it), at the viewer's tessellation level
+  (``--view-level``, default 1); written after the frames (and after those of
+  ``--resume``) from ``control/``, atomically.
 """
 from __future__ import annotations
 
@@ -62,6 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from mi_loop import io
+from mi_loop.app.export_job import VIEW_LEVELS, read_result, sequence_view, write_view
 from mi_loop.fitting.options import SequenceOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
@@ -200,7 +208,7 @@ def _write_state(run: _Run, t: int, x) -> Path:
     return path
 
 
-def _start(out, reader, first, options, template, variant, sources, log):
+def _start(out, reader, first, options, template, variant, sources, fps, log):
     """A fresh run: normalisation, template, step size and cameras, written to ``sequence.json``.
 
     Returns ``(state, norm, x, F)``: the ``sequence.json`` dict, the
@@ -228,7 +236,7 @@ def _start(out, reader, first, options, template, variant, sources, log):
              "n_frames": len(reader), "template": tinfo, "normals_estimated": reader.normals_estimated,
              "images": [str(p) for p in sources.captures] if sources.captures else None,
              "emitters": str(sources.emitters) if sources.emitters else None,
-             "reference": sources.reference is not None, "variant": variant}
+             "reference": sources.reference is not None, "variant": variant, "fps": fps}
     from mi_loop.app.report import plain
 
     io.write_text(out / "sequence.json", json.dumps(plain(state), indent=2) + "\n")
@@ -500,7 +508,7 @@ def _photo_strip(run: _Run, t: int, V_world):
 def run(inputs, output, options: SequenceOptions, *, template: Path | None = None, resume: bool = False,
         variant: str = DEFAULT_VARIANT, log, images=None, emitters: Path | None = None,
         reference: Path | None = None, frames: slice | None = None, animation: str | None = None,
-        fps: float = 24.0) -> list:
+        fps: float = 24.0, view_level: int = VIEW_LEVELS["sequence"]) -> list:
     """Run ``mi-loop fit-sequence``; returns every written path (each also printed as it is written).
 
     Parameters
@@ -533,7 +541,9 @@ def run(inputs, output, options: SequenceOptions, *, template: Path | None = Non
     animation : str, optional
         Name of the glTF/GLB animation to bake (``--animation``).
     fps : float
-        Its frame rate.
+        The frames' rate: of the baked animation and of ``sequence.glb``.
+    view_level : int
+        Tessellation level of ``sequence.glb`` (and of the report's viewer).
 
     Notes
     -----
@@ -548,7 +558,7 @@ def run(inputs, output, options: SequenceOptions, *, template: Path | None = Non
     try:
         return _run(inputs, out, options, template, resume, variant, log,
                     images=images, emitters=emitters, reference=reference, selection=frames,
-                    animation=animation, fps=fps)
+                    animation=animation, fps=fps, view_level=view_level)
     except BaseException:
         with contextlib.suppress(OSError):
             if not (out / "metrics.csv").exists():
@@ -624,7 +634,7 @@ def _sources(frames, images, emitters, reference, selection, log) -> Sources:
 
 
 def _run(inputs, out, options, template, resume, variant, log, *, images=None, emitters=None, reference=None,
-         selection=None, animation=None, fps=24.0):
+         selection=None, animation=None, fps=24.0, view_level=VIEW_LEVELS["sequence"]):
     from mi_loop.app.inputs import FrameReader
     from mi_loop.io.frames import select_frames
     from mi_loop.render.variant import set_variant
@@ -641,10 +651,13 @@ def _run(inputs, out, options, template, resume, variant, log, *, images=None, e
     if rows:
         options, state, norm, x, F, done, saved = _resume(out, rows, options, log)
         pending = [out / "metrics.csv"]
+        if state.get("fps", fps) != fps:
+            log.warning(f"--resume keeps the frame rate of sequence.json: fps {state['fps']:g} "
+                        f"(this command line: {fps:g})")
     reader = FrameReader(frames, options.n_points, options.seed, log)
     first = reader(0)
     if not rows:
-        state, norm, x, F = _start(out, reader, first, options, template, variant, sources, log)
+        state, norm, x, F = _start(out, reader, first, options, template, variant, sources, fps, log)
         done, pending = -1, [out / "sequence.json", out / "metrics.csv"]
     rest = saved["rest"] if saved is not None and "rest" in saved else x
     run_ = _Run(out, reader, options, norm, x, F, float(state["lr"]), rows, done, pending, sources, rest)
@@ -662,4 +675,10 @@ def _run(inputs, out, options, template, resume, variant, log, *, images=None, e
             run_.albedo_opt.t = int(saved["albedo_t"])
     op, vertex_op, renderer = _operators(run_, first, state, log)
     paths = _fit_frames(run_, first, op, vertex_op, renderer, log)
-    return paths + _pictures(run_, log)
+    paths += _pictures(run_, log)
+    finished = read_result(out)                  # every finished frame, resumed ones too, read back from control/
+    view = sequence_view(finished, view_level)   # (V (T, k, 3), F, N (T, k, 3), colours or None): the viewer's
+    with io.staged_outputs(out) as stage:
+        write_view(stage / "sequence.glb", "glb", view, names=finished.names, fps=float(state.get("fps", fps)))
+    log.wrote(out / "sequence.glb")
+    return paths + [out / "sequence.glb"]

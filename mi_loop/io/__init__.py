@@ -4,7 +4,9 @@ The only package that opens files (the Mitsuba plugin reads its control mesh
 through it); it sits just above :mod:`mi_loop.mesh`.
 
 - :mod:`~mi_loop.io.meshes`: :func:`read_mesh`, :func:`read_control_mesh` (with the
-  count of polygons split into triangles), :func:`write_ply`;
+  count of polygons split into triangles), :func:`write_ply`, :func:`write_obj`;
+- :mod:`~mi_loop.io.glb`: :func:`write_glb` (a limit mesh with normals and colours) and
+  :func:`write_glb_sequence` (frames in correspondence as morph targets, animated);
 - :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
 - :mod:`~mi_loop.io.animation`: :func:`bake_animation` (a skinned or node-animated glTF clip as
   meshes in correspondence, :class:`BakedAnimation`), :func:`animation_names`; it reads files
@@ -42,6 +44,7 @@ from mi_loop.io.files import (
     write_text,
 )
 from mi_loop.io.frames import FRAME_SUFFIXES, read_frames
+from mi_loop.io.glb import write_glb, write_glb_sequence
 from mi_loop.io.meshes import (
     MESH_SUFFIXES,
     ControlMesh,
@@ -49,6 +52,7 @@ from mi_loop.io.meshes import (
     read_creases,
     read_mesh,
     read_vertex_colors,
+    write_obj,
     write_ply,
 )
 from mi_loop.io.points import POINT_SUFFIXES, load_oriented_points
@@ -81,6 +85,9 @@ __all__ = [
     "srgb_to_linear",
     "staged_outputs",
     "write_capture",
+    "write_glb",
+    "write_glb_sequence",
+    "write_obj",
     "write_ply",
     "write_png",
     "write_text",

@@ -5,11 +5,13 @@ JSON with embedded or relative buffers) and posed in NumPy as the glTF 2.0
 specification says: node TRS or matrix transforms, animation channels with
 LINEAR (quaternions by slerp), STEP and CUBICSPLINE (Hermite) interpolation,
 linear-blend skinning with ``JOINTS_n`` / ``WEIGHTS_n`` and the skin's
-inverse bind matrices. Every mesh node of the scene is posed (skinned ones by
-their joints, whose space they live in; the others by their node's global
-transform) and all their primitives are concatenated, so vertex ``i`` is the
-same material point in every frame. Morph targets and sparse accessors are
-not supported.
+inverse bind matrices, and morph targets (``POSITION`` deltas weighted by the
+animated ``weights``, else the node's or the mesh's default weights, applied
+before skinning: the form :func:`mi_loop.io.glb.write_glb_sequence` writes).
+Every mesh node of the scene is posed (skinned ones by their joints, whose
+space they live in; the others by their node's global transform) and all
+their primitives are concatenated, so vertex ``i`` is the same material point
+in every frame. Sparse accessors are not supported.
 """
 from __future__ import annotations
 
@@ -184,8 +186,9 @@ def _bake(gltf: GltfFile, animation, fps: float, frames, weld: bool) -> BakedAni
     G = _global_transforms(gltf, _local_transforms(gltf, clip, times))
     Vs, F, C, keys, offset = [], [], [], [], 0
     for n, node in enumerate(instances):
+        weights = _morph_weights(gltf, clip, times, node)
         for prim in doc["meshes"][doc["nodes"][node]["mesh"]]["primitives"]:
-            X, P, Fp, Cp = _posed_primitive(gltf, node, prim, G)
+            X, P, Fp, Cp = _posed_primitive(gltf, node, prim, G, weights)
             Vs.append(X)
             F.append(Fp + offset)
             C.append(Cp)
@@ -238,7 +241,8 @@ def _sample(gltf: GltfFile, t_key, values, times, interpolation: str, rotation: 
         a, v, b = np.moveaxis(values.reshape(K, 3, -1), 1, 0)        # in-tangent, value, out-tangent
     else:
         v = values.reshape(K, -1)
-    k = np.clip(np.searchsorted(t_key, times, side="right") - 1, 0, K - 1)    # last keyframe <= t
+    slack = _EPS_T if interpolation == "STEP" else 0.0       # a frame at a (float32) keyframe time takes its value
+    k = np.clip(np.searchsorted(t_key, times + slack, side="right") - 1, 0, K - 1)    # last keyframe <= t
     if interpolation == "STEP" or K == 1:
         out = v[k]
     else:
@@ -315,7 +319,20 @@ def _mesh_nodes(doc: dict) -> list:
     return found
 
 
-def _posed_primitive(gltf: GltfFile, n: int, prim: dict, G):
+def _morph_weights(gltf: GltfFile, clip: dict, times, n: int):
+    """``(T, targets)`` morph weights of mesh node ``n`` at ``times``: animated, else the node's or mesh's defaults."""
+    node = gltf.doc["nodes"][n]
+    default = node.get("weights", gltf.doc["meshes"][node["mesh"]].get("weights"))
+    W = None if default is None else np.tile(np.asarray(default, dtype=np.float64), (len(times), 1))
+    for channel in clip["channels"]:
+        if channel["target"].get("path") == "weights" and channel["target"].get("node") == n:
+            s = clip["samplers"][channel["sampler"]]
+            W = _sample(gltf, gltf.accessor(s["input"])[:, 0], gltf.accessor(s["output"]), times,
+                        s.get("interpolation", "LINEAR"), False)
+    return W
+
+
+def _posed_primitive(gltf: GltfFile, n: int, prim: dict, G, weights):
     """One primitive of mesh node ``n``: posed ``(T, k, 3)``, rest ``(k, 3)``, faces, colours or None."""
     node = gltf.doc["nodes"][n]
     if prim.get("mode", 4) != 4:
@@ -327,21 +344,30 @@ def _posed_primitive(gltf: GltfFile, n: int, prim: dict, G):
     if F.size and (F.min() < 0 or F.max() >= len(P)):
         fail(gltf.func, f"triangle indices below the {len(P)} vertices of mesh {node['mesh']} in '{gltf.path}'",
              f"index {int(F.max())}")
+    M = np.broadcast_to(P, (len(G), *P.shape))                      # morphed rest positions, per frame
+    targets = prim.get("targets", [])
+    if targets:
+        W = np.zeros((len(G), len(targets))) if weights is None else weights
+        if W.shape[1] != len(targets):
+            fail(gltf.func, f"one morph weight per target ({len(targets)}) of mesh {node['mesh']} in '{gltf.path}'",
+                 f"{W.shape[1]} weights")
+        D = np.stack([gltf.accessor(t["POSITION"]) if "POSITION" in t else np.zeros_like(P) for t in targets])
+        M = P + np.einsum("tj,jvi->tvi", W, D)
     if "skin" in node:
-        X = _skin(gltf, gltf.doc["skins"][node["skin"]], attrs, P, G)
+        X = _skin(gltf, gltf.doc["skins"][node["skin"]], attrs, M, G)
     else:
-        X = np.einsum("tij,vj->tvi", G[:, n, :3, :3], P) + G[:, n, None, :3, 3]
+        X = np.einsum("tij,tvj->tvi", G[:, n, :3, :3], M) + G[:, n, None, :3, 3]
     return X, P, F, base_colors(gltf, prim, len(P))
 
 
-def _skin(gltf: GltfFile, skin: dict, attrs: dict, P, G) -> np.ndarray:
-    """Linear-blend skinning of rest positions ``P`` by the joints' global transforms ``G``: ``(T, k, 3)``."""
+def _skin(gltf: GltfFile, skin: dict, attrs: dict, M, G) -> np.ndarray:
+    """Linear-blend skinning of (morphed) rest positions ``M`` ``(T, k, 3)`` by the joints' transforms ``G``."""
     joints = np.asarray(skin["joints"], dtype=np.int64)
     if "inverseBindMatrices" in skin:
         B = gltf.accessor(skin["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1)
     else:
         B = np.tile(np.eye(4), (len(joints), 1, 1))
-    M = G[:, joints] @ B                                            # (T, J, 4, 4) joint matrices
+    joint = G[:, joints] @ B                                        # (T, J, 4, 4) joint matrices
     sets = [k for k in range(8) if f"JOINTS_{k}" in attrs and f"WEIGHTS_{k}" in attrs]
     if not sets:
         fail(gltf.func, f"JOINTS_0 and WEIGHTS_0 on every skinned primitive in '{gltf.path}'",
@@ -359,10 +385,10 @@ def _skin(gltf: GltfFile, skin: dict, attrs: dict, P, G) -> np.ndarray:
         fail(gltf.func, f"joint indices below the skin's {len(joints)} joints in '{gltf.path}'",
              f"vertex {v} with joints {J[v].tolist()}")
     W, J = W / total[:, None], np.where(W != 0, J, 0)
-    A = np.zeros((len(G), len(P), 3, 4))
+    A = np.zeros((len(G), M.shape[1], 3, 4))
     for i in range(J.shape[1]):
-        A += W[:, i, None, None] * M[:, J[:, i], :3, :]
-    return np.einsum("tvij,vj->tvi", A[..., :3], P) + A[..., 3]
+        A += W[:, i, None, None] * joint[:, J[:, i], :3, :]
+    return np.einsum("tvij,tvj->tvi", A[..., :3], M) + A[..., 3]
 
 
 def _weld(Vs, F, C, keys):

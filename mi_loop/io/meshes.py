@@ -1,4 +1,4 @@
-"""Mesh files: read control meshes (PLY, OBJ, OFF, glTF/GLB), write PLY atomically.
+"""Mesh files: read control meshes (PLY, OBJ, OFF, glTF/GLB), write PLY and OBJ atomically.
 
 Vertex order is kept as stored (the control points of a Loop surface are
 addressed by index); polygons are split into triangle fans in the file's
@@ -20,7 +20,7 @@ from mi_loop.io.ply import read_ply
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
 __all__ = ["MESH_SUFFIXES", "ControlMesh", "read_control_mesh", "read_creases", "read_mesh", "read_vertex_colors",
-           "write_ply"]
+           "write_obj", "write_ply"]
 
 #: Float32 linear vertex colours in the PLY files mi_loop writes (next to 8-bit sRGB ``red green blue``).
 _ALBEDO = ("albedo_r", "albedo_g", "albedo_b")
@@ -223,6 +223,63 @@ def write_ply(path, V, F, normals=None, colors=None, creases=None) -> Path:
         f.write(faces.tobytes())
         if edges is not None:
             f.write(edges.tobytes())
+    return path
+
+
+def write_obj(path, V, F, normals=None) -> Path:
+    """Write a triangle mesh as a Wavefront OBJ file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its directory must exist.
+    V : (n, 3) float array-like
+        Vertex positions, written with 17 significant digits (float64 round-trips exactly).
+    F : (m, 3) int array-like
+        Triangles, indices in ``[0, n)`` (written 1-based).
+    normals : (n, 3) float array-like, optional
+        Per-vertex normals (``vn``, 9 digits), one per vertex: corners are ``i//i``.
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        If the arrays have the wrong shape or face indices are out of range.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = write_obj(os.path.join(d, "t.obj"), np.eye(3), [[0, 1, 2]])
+    ...     V, F = read_mesh(p)
+    >>> V.tolist(), F.tolist()
+    ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1, 2]])
+    """
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        fail("write_obj", "V of shape (n, 3) with n > 0", f"shape {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        fail("write_obj", "integer F of shape (m, 3)", f"{F.dtype} array of shape {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
+        fail("write_obj", f"face indices in [0, {len(V)})", f"face {bad} = {F[bad].tolist()}")
+    lines = ["# written by mi_loop", *(f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist())]
+    corner = "{0}"
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != V.shape:
+            fail("write_obj", f"normals of shape {V.shape}", f"shape {normals.shape}")
+        lines += [f"vn {x:.9g} {y:.9g} {z:.9g}" for x, y, z in normals.tolist()]
+        corner = "{0}//{0}"
+    face = f"f {corner.format('{0}')} {corner.format('{1}')} {corner.format('{2}')}"
+    lines += [face.format(a, b, c) for a, b, c in (F + 1).tolist()]
+    path = Path(path)
+    with atomic_open(path) as f:
+        f.write(("\n".join(lines) + "\n").encode("ascii"))
     return path
 
 

@@ -121,7 +121,7 @@ def test_the_summary_has_a_row_per_input_with_its_worker_error_and_metrics(first
 def test_a_batch_fit_equals_mi_loop_fit_bit_for_bit(first_run, inputs, tmp_path, capsys):
     out, _ = first_run
     assert main(["fit", str(inputs / "a.xyz"), "-o", str(tmp_path / "fit"), *FAST, "--quiet"]) == 0
-    for name in ("control.ply", "limit.ply"):
+    for name in ("control.ply", "limit.ply", "limit.glb"):
         assert (out / "a" / name).read_bytes() == (tmp_path / "fit" / name).read_bytes(), name
 
 

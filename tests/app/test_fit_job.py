@@ -31,7 +31,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     code = main(["fit", "--demo", "-o", str(out), "--vertices", "100", "--iterations", "60"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    names = ["control.ply", "limit.ply", "report.json", "loss.png", "render.png"]
+    names = ["control.ply", "limit.ply", "limit.glb", "report.json", "loss.png", "render.png"]
     assert captured.out.split() == [str(out / n) for n in names]
     assert "error" not in captured.err and "[mi-loop" in captured.err        # progress on stderr
     assert sorted(p.name for p in out.iterdir()) == sorted(names)            # and nothing else
@@ -98,6 +98,12 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     np.testing.assert_array_equal(F_lim, F_ref)
     np.testing.assert_allclose(V_lim, V_ref, rtol=0, atol=1e-9)              # limit.ply is control.ply's limit
     assert torus_error(V_lim).mean() < 0.01                                    # and it lies on the torus
+    import trimesh
+
+    viewer = trimesh.load(out / "limit.glb", force="mesh", process=False)     # the viewer's: level 2 by default
+    V_view, F_view = limit_surface(V, F, level=2)
+    np.testing.assert_array_equal(viewer.faces, F_view)
+    np.testing.assert_allclose(viewer.vertices, V_view, rtol=0, atol=1e-6)
 
     loss = mpl_image.imread(out / "loss.png")
     render = mpl_image.imread(out / "render.png")

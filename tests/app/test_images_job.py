@@ -36,14 +36,24 @@ def test_fit_images_writes_a_coloured_control_mesh_report_and_pictures(capture, 
     out = tmp_path / "out"
     assert main(["fit-images", str(capture), "-o", str(out), *FAST]) == 0
     printed = capsys.readouterr().out.split()
-    assert printed == [str(out / name) for name in ("control.ply", "limit.ply", "report.json", "progress.png",
-                                                    "loss.png")]
+    assert printed == [str(out / name) for name in ("control.ply", "limit.ply", "limit.glb", "report.json",
+                                                    "progress.png", "loss.png")]
     V, F = io.read_mesh(out / "control.ply")
     colors = io.read_vertex_colors(out / "control.ply")
     assert colors.shape == V.shape and (colors >= 0).all() and (colors <= 1).all()
     assert len(V) == 162                                 # 42 -> 162: one exact refinement within 170
     P_lim, _ = io.read_mesh(out / "limit.ply")
     assert io.read_vertex_colors(out / "limit.ply").shape == P_lim.shape
+    # limit.glb: the viewer's level (2) with the albedo as linear COLOR_0, read by mi_loop's glTF reader
+    from mi_loop.io.gltf import GltfFile, base_colors
+    from mi_loop.subdiv.masks import limit_colors
+
+    glb = GltfFile(out / "limit.glb", "test")
+    prim = glb.doc["meshes"][0]["primitives"][0]
+    P_view, F_view, _ = limit_mesh(V, F, 2)
+    np.testing.assert_allclose(glb.accessor(prim["attributes"]["POSITION"]), P_view, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(glb.accessor(prim["indices"], floats=False).reshape(-1, 3), F_view)
+    np.testing.assert_allclose(base_colors(glb, prim, len(P_view)), limit_colors(colors, F, 2), atol=1e-6)
     report = json.loads((out / "report.json").read_text())
     assert [s["n_vertices"] for s in report["stages"]] == [42, 162]
     assert [(s["width"], s["height"]) for s in report["stages"]] == [(20, 16), (40, 32)]

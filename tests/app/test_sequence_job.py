@@ -7,7 +7,9 @@ tests/fitting/test_sequence.py.
 from __future__ import annotations
 
 import csv
+import json
 import re
+import shutil
 
 import mitsuba as mi
 import numpy as np
@@ -20,7 +22,7 @@ from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.fitting.options import SequenceOptions
 
-from helpers import REPO, one_line_error, sphere_mesh
+from helpers import REPO, one_line_error, parse_glb, sphere_mesh
 
 #: Options of a quick run: 4 views of 24x24 pixels, 2 spp, 20 iterations per frame (30 for the first),
 #: an image refresh every 10, 2000 points.
@@ -60,9 +62,10 @@ def run_ok(args):
 
 @pytest.fixture(scope="module")
 def image_run(inputs, tmp_path_factory):
-    """Output directory of one run with the image term (``--seen 1``: the rough frames' renders count)."""
+    """Output directory of one run with the image term (``--seen 1``: the rough frames' renders count),
+    its sequence.glb at the level of limit/ (2) and 12.5 fps."""
     out = tmp_path_factory.mktemp("image_run") / "out"
-    run_ok(argv(inputs, out, "--seen", "1"))
+    run_ok(argv(inputs, out, "--seen", "1", "--view-level", "2", "--fps", "12.5"))
     return out
 
 
@@ -115,6 +118,19 @@ def test_fit_sequence_writes_every_frame_with_the_templates_faces(inputs, image_
         assert (image_run / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert no_temporary_files(image_run)
     assert not (image_run / "limit" / "0003.ply").exists()
+    # sequence.glb at --view-level 2: frame k (base + target k) is limit/000k.ply, shown from k / 12.5 s
+    doc, read = parse_glb(image_run / "sequence.glb")
+    prim, = doc["meshes"][0]["primitives"]
+    base = read(prim["attributes"]["POSITION"])
+    assert len(prim["targets"]) == 3 and doc["meshes"][0]["extras"]["targetNames"] == [r["name"] for r in rows]
+    for t, target in enumerate(prim["targets"]):
+        V_lim, F_lim = io.read_mesh(image_run / "limit" / f"{t:04d}.ply")
+        assert len(base) == len(V_lim)
+        np.testing.assert_allclose(base + read(target["POSITION"]), V_lim, rtol=0, atol=2e-6)
+    np.testing.assert_array_equal(read(prim["indices"]).reshape(-1, 3), F_lim)
+    sampler, = doc["animations"][0]["samplers"]
+    np.testing.assert_array_equal(read(sampler["input"]).ravel(), (np.arange(3) / 12.5).astype(np.float32))
+    assert json.loads((image_run / "sequence.json").read_text())["fps"] == 12.5
 
 
 def interrupt_at_frame(monkeypatch, frame):
@@ -151,6 +167,7 @@ def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_ru
         np.testing.assert_array_equal(V, V_ref)
         with np.load(out / "state" / f"{t:04d}.npz") as a, np.load(geometric_run / "state" / f"{t:04d}.npz") as b:
             np.testing.assert_array_equal(a["x"], b["x"])
+    assert (out / "sequence.glb").read_bytes() == (geometric_run / "sequence.glb").read_bytes()
 
 
 def spy_on_camera_boxes(monkeypatch, boxes):
@@ -236,6 +253,67 @@ def test_ctrl_c_while_writing_a_frame_leaves_only_complete_files(inputs, geometr
     V, _ = io.read_mesh(out / "control" / "0002.ply")
     V_ref, _ = io.read_mesh(geometric_run / "control" / "0002.ply")
     np.testing.assert_array_equal(V, V_ref)                             # as in the resume test
+
+
+def test_sequence_glb_plays_every_frame_and_export_writes_the_same_file(geometric_run, tmp_path, capsys):
+    """The default view level (1) and rate (24 fps); mi_loop's glTF baker plays it back as the limit
+    surfaces of control/; ``mi-loop export`` of the directory gives the same bytes."""
+    from mi_loop.io.animation import bake_animation
+    from mi_loop.subdiv.masks import limit_mesh
+
+    doc, read = parse_glb(geometric_run / "sequence.glb")
+    prim, = doc["meshes"][0]["primitives"]
+    assert doc["accessors"][prim["attributes"]["POSITION"]]["count"] == 42 + 120   # icosphere(1) at level 1
+    assert len(prim["targets"]) == 3
+    baked = bake_animation(geometric_run / "sequence.glb", "sequence", fps=24.0)
+    np.testing.assert_allclose(baked.times, np.arange(3) / 24.0)
+    for t in range(3):
+        P, F_t, _ = limit_mesh(*io.read_mesh(geometric_run / "control" / f"{t:04d}.ply"), 1)
+        np.testing.assert_allclose(baked.vertices[t], P, rtol=0, atol=2e-6)
+    np.testing.assert_array_equal(baked.faces, F_t)
+    out = tmp_path / "copy"
+    shutil.copytree(geometric_run, out)
+    assert main(["export", str(out), "-o", str(tmp_path / "again.glb"), "--quiet"]) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "again.glb")]
+    assert (tmp_path / "again.glb").read_bytes() == (geometric_run / "sequence.glb").read_bytes()
+
+
+def test_a_failure_while_writing_sequence_glb_leaves_no_part_of_it(inputs, geometric_run, tmp_path, capsys,
+                                                                  monkeypatch):
+    """The disk fills up in the middle of sequence.glb: no sequence.glb, no temporary file, every frame
+    kept; --resume (nothing left to fit) writes it whole."""
+    import contextlib
+
+    import mi_loop.io.glb
+
+    real_open = mi_loop.io.glb.atomic_open
+
+    class Full:
+        def __init__(self, f):
+            self.f, self.writes = f, 0
+
+        def write(self, data):
+            self.writes += 1
+            if self.writes == 2:                          # after the header: a half-written file
+                raise OSError(28, "No space left on device")
+            return self.f.write(data)
+
+    @contextlib.contextmanager
+    def full_disk(path):
+        with real_open(path) as f:
+            yield Full(f)
+
+    out = tmp_path / "out"
+    shutil.copytree(geometric_run, out)
+    (out / "sequence.glb").unlink()
+    monkeypatch.setattr(mi_loop.io.glb, "atomic_open", full_disk)
+    line = one_line_error(capsys, argv(inputs, out, "--no-image", "--resume"))
+    assert line == "mi-loop: error: [Errno 28] No space left on device"
+    monkeypatch.undo()
+    assert not (out / "sequence.glb").exists() and no_temporary_files(out)
+    assert [int(r["frame"]) for r in read_rows(out)] == [0, 1, 2]
+    run_ok(argv(inputs, out, "--no-image", "--resume"))
+    assert (out / "sequence.glb").read_bytes() == (geometric_run / "sequence.glb").read_bytes()
 
 
 # -- bad input ---------------------------------------------------------------------
@@ -423,7 +501,6 @@ def test_a_run_stopped_before_its_first_frame_leaves_an_existing_directory_as_it
 
 
 def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, tmp_path, capsys):
-    import json
     from dataclasses import asdict
 
     import mi_loop.app.sequence_job
@@ -437,7 +514,7 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
         expected += [out / "control" / f"{t:04d}.ply", out / "limit" / f"{t:04d}.ply", out / "state" / f"{t:04d}.npz"]
         if t == 0:
             expected += [out / "sequence.json", out / "metrics.csv"]
-    expected += [out / "drift.png", out / "strip.png"]
+    expected += [out / "drift.png", out / "strip.png", out / "sequence.glb"]
     assert captured.out.splitlines() == [str(p) for p in expected]
     written = sorted(p for p in out.rglob("*") if p.is_file())
     assert written == sorted(expected)                                 # and nothing else was written
@@ -513,8 +590,6 @@ def write_point_frames(root, n=3, points=3000):
 
 
 def test_point_frames_without_normals_get_estimated_normals(inputs, tmp_path, capsys):
-    import json
-
     out = tmp_path / "out"
     run_ok(["fit-sequence", str(write_point_frames(tmp_path)), "-o", str(out), "--template", str(inputs[1]),
             "--iterations", "60"])
@@ -560,8 +635,6 @@ def test_resume_without_the_exact_state_falls_back_to_the_control_mesh(inputs, g
 
 
 def test_a_quad_template_is_split_with_a_warning_and_recorded(inputs, tmp_path, capsys):
-    import json
-
     (tmp_path / "cube.obj").write_text("v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\n"
                                        "v 1 1 1\nv -1 1 1\nf 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\n"
                                        "f 3 4 8 7\nf 4 1 5 8\n")          # a cube of six quads

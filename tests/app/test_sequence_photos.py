@@ -205,11 +205,13 @@ def test_a_frame_range_that_keeps_nothing_is_refused(capture, tmp_path, capsys):
                     "3 frames, got 5:None:None keeps none")
 
 
-def test_fps_needs_an_animation(capture, tmp_path, capsys):
-    depth, _, _ = capture
-    line = one_line_error(capsys, ["fit-sequence", str(depth), "-o", str(tmp_path / "out"), "--fps", "30"])
-    assert line == ("mi-loop: error: fit-sequence --fps: expected --animation (the frame rate of a baked "
-                    "animation), got --fps 30 without it")
+@pytest.mark.parametrize("fps", ["0", "-24", "nan", "inf"])
+def test_a_bad_frame_rate_is_refused_before_the_frames_are_read(fps, tmp_path, capsys):
+    """--fps is the rate of sequence.glb (and of a baked --animation): finite and positive."""
+    line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "nope.npz"), "-o", str(tmp_path / "out"),
+                                   "--fps", fps])
+    assert line == f"mi-loop: error: fit-sequence --fps: expected a finite number > 0, got {float(fps)}"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_missing_capture_is_named(capture, tmp_path, capsys):
