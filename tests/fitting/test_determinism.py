@@ -27,6 +27,8 @@ def test_static_fits_are_bit_identical():
     runs = [fit(P, N, n_vertices=300, max_iterations=60) for _ in range(2)]
     np.testing.assert_array_equal(runs[1].V, runs[0].V)
     assert runs[0].history["total"] == runs[1].history["total"]
+    selection = runs[0].info["noise"]["selection"]            # noisy data: the held-out selection ran, and
+    assert len(selection["alphas"]) >= 2 and selection == runs[1].info["noise"]["selection"]   # the same way
 
 
 def frames(n_frames=3, n_points=20_000):
