@@ -182,4 +182,4 @@ def test_pip_install_alone_gives_a_working_mi_loop(tmp_path):
                           capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert demo.returncode == 0, demo.stderr[-2000:]
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "control.ply", "limit.glb", "limit.ply", "loss.png", "render.png", "report.json"]
+        "control.ply", "limit.glb", "limit.ply", "loss.png", "render.png", "report.html", "report.json"]

@@ -9,6 +9,8 @@
 - :mod:`~mi_loop.app.inputs`: inputs as fitting data (normals, templates checked against the data, frames);
 - :mod:`~mi_loop.app.progress`: progress lines and bars, warnings, written paths;
 - :mod:`~mi_loop.app.report`: loss plots, drift plots, side-by-side renders (pixel arrays).
+- :mod:`~mi_loop.app.html_report`: ``report.html``, self-contained pages with a three.js view (``viewer/``),
+  from what :mod:`~mi_loop.app.report_data` computes (distances per limit point, crease curves, frusta).
 """
 
 __all__: list = []

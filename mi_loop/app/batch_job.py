@@ -14,7 +14,9 @@ before anything runs.
   failed one is fitted again.
 - ``OUTDIR/summary.csv`` (:mod:`~mi_loop.app.batch_summary`) has a row per
   finished input, rewritten atomically as each one finishes: an interrupted
-  batch keeps the rows of the inputs it finished.
+  batch keeps the rows of the inputs it finished. ``OUTDIR/report.html`` is
+  the same table as a page, rewritten with it, that links each finished
+  input's ``OUTDIR/<name>/report.html``.
 - A failed input does not stop the others; when all have finished,
   :class:`BatchError` names how many failed.
 """
@@ -31,7 +33,7 @@ from pathlib import Path
 from distributed import WorkerPlugin
 
 from mi_loop import io
-from mi_loop.app.batch_summary import SUMMARY, complete, read_metrics, write_summary
+from mi_loop.app.batch_summary import INDEX, SUMMARY, complete, read_metrics, write_index, write_summary
 from mi_loop.app.progress import Reporter
 from mi_loop.errors import FitError, fail
 from mi_loop.render.variant import DEFAULT_VARIANT
@@ -293,6 +295,7 @@ def _collect(client, todo: list, names: list, rows: dict, summary: Path, shown: 
                 log.warning(f"{name}: {message}")
             rows[name] = row
             write_summary(summary, names, rows, task.sequence)
+            write_index(summary.parent / INDEX, names, rows, task.sequence)
             failed += row["status"] == "failed"
             where = f" after {row['seconds']:.1f} s on {row['worker']}" if "seconds" in row else ""
             log.say(f"{name}: {row['status']}{where}" + (f": {row['error']}" if row["error"] else ""))
@@ -332,7 +335,8 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
     Returns
     -------
     pathlib.Path
-        ``OUTDIR/summary.csv``, also printed, after the output directory of every input done.
+        ``OUTDIR/summary.csv``, printed (then ``OUTDIR/report.html``) after the output directory of every
+        input done.
 
     Raises
     ------
@@ -375,14 +379,16 @@ def run(inputs, output, options, *, scheduler: str | None = None, workers: int |
                 threads = max(1, (os.cpu_count() or 1) // (workers or LOCAL_WORKERS)) if scheduler is None else None
                 client.register_plugin(WorkerSetup(variant, threads))
                 write_summary(summary, names, rows, sequence)
+                write_index(out / INDEX, names, rows, sequence)
                 _collect(client, todo, names, rows, summary, Path(output), log)
         else:
             write_summary(summary, names, rows, sequence)
+            write_index(out / INDEX, names, rows, sequence)
     except BaseException:
         if not summary.exists():
             io.remove_if_empty(created, out)
         raise
-    log.wrote(Path(output) / SUMMARY)
+    log.wrote(Path(output) / SUMMARY, Path(output) / INDEX)
     failed = [t.output.name for t in tasks if rows.get(t.output.name, {}).get("status") == "failed"]
     if failed:
         names = ", ".join(failed[:3]) + (", ..." if len(failed) > 3 else "")

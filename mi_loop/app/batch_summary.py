@@ -5,7 +5,9 @@
 ``report.json`` (two-sided distances relative to the data's bounding-box
 diagonal, iterations, convergence) or :data:`SEQUENCE_METRICS` (the frames
 fitted and the last frame's row of ``metrics.csv``). Fields are quoted as the
-:mod:`csv` module does (errors hold commas).
+:mod:`csv` module does (errors hold commas). ``OUTDIR/report.html``
+(:func:`write_index`) shows the same table in a browser, each finished input
+linked to its own ``report.html``.
 """
 from __future__ import annotations
 
@@ -16,8 +18,8 @@ from pathlib import Path
 
 from mi_loop import io
 
-__all__ = ["COLUMNS", "FIT_METRICS", "SEQUENCE_METRICS", "SEQUENCE_OUTPUTS", "SUMMARY", "complete", "read_metrics",
-           "write_summary"]
+__all__ = ["COLUMNS", "FIT_METRICS", "INDEX", "SEQUENCE_METRICS", "SEQUENCE_OUTPUTS", "SUMMARY", "complete",
+           "read_metrics", "write_index", "write_summary"]
 
 #: The first columns of ``summary.csv``; ``status`` is ``done``, ``failed`` or ``skipped``.
 COLUMNS = ("input", "status", "seconds", "worker", "error")
@@ -27,9 +29,11 @@ FIT_METRICS = ("mean", "rms", "hausdorff", "p2s_mean", "p2s_max", "s2p_mean", "s
 #: Or, for sequences: frames fitted and the last frame's row of ``metrics.csv``.
 SEQUENCE_METRICS = ("frames", "last_frame", "mean", "rms", "hausdorff", "flipped_pct", "drift_mean", "drift_p95")
 #: The files a finished ``fit-sequence`` has written besides ``control/``, ``limit/`` and ``state/``.
-SEQUENCE_OUTPUTS = ("sequence.json", "metrics.csv", "drift.png", "strip.png", "sequence.glb")
+SEQUENCE_OUTPUTS = ("sequence.json", "metrics.csv", "drift.png", "strip.png", "sequence.glb", "report.html")
 #: The summary's file name in OUTDIR.
 SUMMARY = "summary.csv"
+#: The index page's file name in OUTDIR (and of each input's report in ``OUTDIR/<name>/``).
+INDEX = "report.html"
 
 
 def complete(output: Path, sequence: bool) -> bool:
@@ -105,3 +109,31 @@ def write_summary(path: Path, names: list, rows: dict, sequence: bool) -> Path:
     writer.writerow(columns)
     writer.writerows([rows[name].get(c, "") for c in columns] for name in names if name in rows)
     return io.write_text(path, text.getvalue())
+
+
+def write_index(path: Path, names: list, rows: dict, sequence: bool) -> Path:
+    """Write the batch's ``report.html`` atomically: the summary's table, each input's ``report.html`` linked.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        ``OUTDIR/report.html``.
+    names : list of str
+        The output names of every input of the batch, in order.
+    rows : dict
+        Output name -> row (:data:`COLUMNS` and metrics) of the finished ones.
+    sequence : bool
+        The metrics columns: :data:`SEQUENCE_METRICS`, else :data:`FIT_METRICS`.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    from mi_loop.app.html_report import index_page
+
+    columns = COLUMNS + (SEQUENCE_METRICS if sequence else FIT_METRICS)
+    done = [name for name in names if name in rows]
+    links = [f"{name}/{INDEX}" if (path.parent / name / INDEX).is_file() else None for name in done]
+    title = f"mi-loop fit-batch{' --sequences' if sequence else ''}: {path.parent.name}"
+    return io.write_text(path, index_page(title, columns, [rows[name] for name in done], links))

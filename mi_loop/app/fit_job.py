@@ -7,6 +7,10 @@ interrupted run leaves no partial output (and removes the directories it created
 ``limit.ply`` is the limit surface at level 3 with exact limit normals;
 ``limit.glb`` the same surface at the viewer's level (``--view-level``,
 default 2) as glTF 2.0 binary, which Blender, three.js and other viewers open.
+``report.html`` shows that surface in a browser, offline (:mod:`~mi_loop.app.html_report`),
+coloured by the distance to the data (with ``--demo`` also to the clean torus), with a
+subsample of the data points, the control cage, the creases, the tables of
+``report.json`` and the loss plot.
 
 ``report.json`` holds ``input`` and ``input_info`` (what was read, whether
 normals were estimated), ``params`` (the options actually used), ``converged``,
@@ -39,7 +43,7 @@ from mi_loop.render.variant import DEFAULT_VARIANT
 __all__ = ["OUTPUTS", "run"]
 
 #: The files ``mi-loop fit`` writes into OUTDIR, in this order.
-OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "loss.png", "render.png")
+OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "report.html", "loss.png", "render.png")
 
 _TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha", "fold": "fold"}
 
@@ -143,6 +147,15 @@ def _folds(V_lim, F_lim, target, log) -> dict:
     return out
 
 
+def _clean_field(clean, metrics_clean):
+    """The demo's second colouring in report.html: ``('the clean torus', distance relative to its diagonal)``."""
+    if clean is None:
+        return None
+    from mi_loop.datasets import torus_distance
+
+    return "the clean torus", lambda X: torus_distance(X) / metrics_clean["diagonal"]
+
+
 def _report(input, info, result, converged, metrics, metrics_clean, template_info, variant):
     report = {"input": str(input) if input is not None else info["source"], "input_info": info,
               "params": result.params, "converged": converged, "timings_s": result.timings,
@@ -182,6 +195,7 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
         The written files (:data:`OUTPUTS` in OUTDIR), also printed by ``log``.
     """
     from mi_loop.app.report import loss_plot, plain, side_by_side
+    from mi_loop.app.report_data import fit_page
     from mi_loop.render.variant import set_variant
 
     P, N, target, info, clean = _load(input, log)
@@ -203,11 +217,15 @@ def run(input: Path | None, output: Path, options: FitOptions, *, template: Path
         render = side_by_side(target, result.V, result.F, creases=result.creases)
         result.timings["pictures"] = time.perf_counter() - t
         report = _report(input, info, result, converged, metrics, metrics_clean, template_info, variant)
+        t = time.perf_counter()
+        page = fit_page(result, view, view_level, target, report, loss, _clean_field(clean, metrics_clean))
+        result.timings["report_html"] = time.perf_counter() - t
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F, creases=result.creases)
             io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2])
             io.write_glb(stage / "limit.glb", *view)
             io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
+            io.write_text(stage / "report.html", page)
             io.write_png(stage / "loss.png", loss)
             io.write_png(stage / "render.png", render)
     except BaseException:

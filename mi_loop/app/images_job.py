@@ -13,6 +13,10 @@ Outputs (written together at the end, nothing half-written):
   photo's loss at the start and at the end, at the finest resolution, mean
   L1 over linear RGB), ``timings_s``, ``parameters`` (optimised scalars),
   ``machine``, ``variant``;
+- ``report.html``: the fit in a browser, offline (:mod:`~mi_loop.app.html_report`):
+  the limit surface at the viewer's level coloured by its albedo, the control
+  cage, the cameras' frusta, the photos next to renders of the fit from the
+  same cameras, the per-view losses and the loss plot;
 - ``progress.png``: four photos (composited over the lighting) and the
   renders of the start and of the fit from the same cameras;
 - ``loss.png``: the image loss per iteration, stages marked.
@@ -35,7 +39,7 @@ from mi_loop.render.variant import DEFAULT_VARIANT
 __all__ = ["OUTPUTS", "run"]
 
 #: The files ``mi-loop fit-images`` writes into OUTDIR, in this order.
-OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "progress.png", "loss.png")
+OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "report.html", "progress.png", "loss.png")
 
 #: Views shown in ``progress.png``.
 SHOWN = 4
@@ -115,6 +119,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     """
     from mi_loop.app.image_report import image_loss_plot, progress_grid
     from mi_loop.app.report import plain
+    from mi_loop.app.report_data import images_page
     from mi_loop.fitting.images import fit_images
     from mi_loop.io.capture import read_capture
     from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
@@ -150,11 +155,15 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
                   "views": [{"name": v.name, "loss_start": s, "loss_end": e} for v, s, e in
                             zip(shot.views, evaluation["start"]["losses"], evaluation["end"]["losses"])],
                   "timings_s": timings, "machine": platform.node(), "variant": variant}
+        t = time.perf_counter()
+        page = images_page(result, view, shot.views, evaluation, shown, report, loss)
+        timings["report_html"] = time.perf_counter() - t
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F, colors=np.clip(result.albedo, 0, 1))
             io.write_ply(stage / "limit.ply", limit[0], limit[1], normals=limit[2], colors=limit[3])
             io.write_glb(stage / "limit.glb", *view)
             io.write_text(stage / "report.json", json.dumps(plain(report), indent=2) + "\n")
+            io.write_text(stage / "report.html", page)
             io.write_png(stage / "progress.png", grid)
             io.write_png(stage / "loss.png", loss)
     except BaseException:

@@ -56,7 +56,13 @@ Layout of OUTDIR (every path is printed on stdout as it is written):
   correspondence, frame 0 with a morph target per frame, animated at ``fps``
   (Blender and three.js play it), at the viewer's tessellation level
   (``--view-level``, default 1); written after the frames (and after those of
-  ``--resume``) from ``control/``, atomically.
+  ``--resume``) from ``control/``, atomically;
+- ``report.html``: the same frames in a browser, offline
+  (:mod:`~mi_loop.app.html_report`): a frame slider with play and pause, each
+  frame's limit surface coloured by its distance to the frame's target (the
+  clean reference where there is one), the control cage, and the per-frame
+  distance, fold and drift plots with the current frame marked; written
+  with ``sequence.glb``.
 """
 from __future__ import annotations
 
@@ -678,7 +684,26 @@ def _run(inputs, out, options, template, resume, variant, log, *, images=None, e
     paths += _pictures(run_, log)
     finished = read_result(out)                  # every finished frame, resumed ones too, read back from control/
     view = sequence_view(finished, view_level)   # (V (T, k, 3), F, N (T, k, 3), colours or None): the viewer's
+    page = _report_html(run_, finished, view, float(state.get("fps", fps)))
     with io.staged_outputs(out) as stage:
         write_view(stage / "sequence.glb", "glb", view, names=finished.names, fps=float(state.get("fps", fps)))
-    log.wrote(out / "sequence.glb")
-    return paths + [out / "sequence.glb"]
+        io.write_text(stage / "report.html", page)
+    log.wrote(out / "sequence.glb", out / "report.html")
+    return paths + [out / "sequence.glb", out / "report.html"]
+
+
+def _report_html(run: _Run, finished, view, fps: float) -> str:
+    """``report.html`` of every finished frame (:func:`~mi_loop.app.report_data.sequence_report`)."""
+    from mi_loop.app.report_data import sequence_report
+
+    rows = [dict(zip(CSV_HEADER.split(","), r)) for r in run.rows]
+    frames = [int(r["frame"]) for r in rows]
+
+    def target(i):
+        if run.sources.reference is not None:
+            _, V, F, _ = run.sources.reference[frames[i]]()
+            return ("mesh", V, F)
+        return run.reader.target(frames[i])
+
+    cages = [io.read_mesh(p) for p in finished.controls]
+    return sequence_report(view, finished.names, target, (np.stack([V for V, _ in cages]), cages[0][1]), rows, fps)

@@ -18,7 +18,7 @@ import numpy as np
 from mi_loop.errors import fail
 
 __all__ = ["STAGING", "atomic_open", "ensure_writable_dir", "first_missing_ancestor", "remove_if_empty",
-           "remove_stale_stages", "staged_directory", "staged_outputs", "write_png", "write_text"]
+           "png_bytes", "remove_stale_stages", "staged_directory", "staged_outputs", "write_png", "write_text"]
 
 
 def first_missing_ancestor(path) -> Path | None:
@@ -249,8 +249,56 @@ def atomic_open(path):
         raise
 
 
+def _png(image, func: str) -> bytes:
+    """The PNG bytes of ``image``, checked; errors name ``func``."""
+    import io
+
+    from matplotlib import image as mpl_image
+
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
+        fail(func, "an (h, w, 3|4) image", f"shape {image.shape}")
+    if image.dtype != np.uint8:
+        bad = ~((image >= 0) & (image <= 1))
+        if bad.any():
+            fail(func, "float pixels in [0, 1] (no NaN)",
+                 f"{image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
+        image = np.round(image * 255).astype(np.uint8)
+    buffer = io.BytesIO()
+    mpl_image.imsave(buffer, image, format="png")
+    return buffer.getvalue()
+
+
+def png_bytes(image) -> bytes:
+    """Encode an RGB(A) image as an 8-bit PNG file's bytes (for a page that embeds it).
+
+    Parameters
+    ----------
+    image : (h, w, 3) or (h, w, 4) array-like, uint8 or float
+        Display-ready pixels: uint8, or floats in [0, 1] (already
+        gamma-encoded; see :func:`mi_loop.render.scene.to_srgb`).
+
+    Returns
+    -------
+    bytes
+        The PNG file.
+
+    Raises
+    ------
+    ValueError
+        If the image is not (h, w, 3|4) or a float image has values outside
+        [0, 1] or NaNs.
+
+    Examples
+    --------
+    >>> png_bytes(np.zeros((2, 3, 3), np.uint8))[:8]
+    b'\\x89PNG\\r\\n\\x1a\\n'
+    """
+    return _png(image, "png_bytes")
+
+
 def write_png(path, image) -> Path:
-    """Write an RGB(A) image as an 8-bit PNG file, atomically.
+    """Write an RGB(A) image as an 8-bit PNG file, atomically (:func:`png_bytes`).
 
     Parameters
     ----------
@@ -271,20 +319,10 @@ def write_png(path, image) -> Path:
         If the image is not (h, w, 3|4) or a float image has values outside
         [0, 1] or NaNs.
     """
-    from matplotlib import image as mpl_image
-
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] not in (3, 4) or 0 in image.shape:
-        fail("write_png", "an (h, w, 3|4) image", f"shape {image.shape}")
-    if image.dtype != np.uint8:
-        bad = ~((image >= 0) & (image <= 1))
-        if bad.any():
-            fail("write_png", "float pixels in [0, 1] (no NaN)",
-                 f"{image[bad].flat[0]} at pixel {np.argwhere(bad)[0, :2].tolist()}")
-        image = np.round(image * 255).astype(np.uint8)
+    data = _png(image, "write_png")
     path = Path(path)
     with atomic_open(path) as f:
-        mpl_image.imsave(f, image, format="png")
+        f.write(data)
     return path
 
 

@@ -88,8 +88,8 @@ def test_a_batch_fits_every_input_and_records_the_failed_one(first_run):
                       f"{out / 'summary.csv'}"], result.stderr
     assert "Traceback" not in result.stderr and "malloc" not in result.stderr
     assert sorted(result.stdout.split()[:2]) == [str(out / "a"), str(out / "b")]     # as each one is done
-    assert result.stdout.split()[2:] == [str(out / "summary.csv")]
-    assert sorted(p.name for p in out.iterdir()) == ["a", "b", "summary.csv"]        # no bad/, no staging left
+    assert result.stdout.split()[2:] == [str(out / "summary.csv"), str(out / "report.html")]
+    assert sorted(p.name for p in out.iterdir()) == ["a", "b", "report.html", "summary.csv"]   # no bad/, no staging
     for name in ("a", "b"):
         assert sorted(p.name for p in (out / name).iterdir()) == sorted(OUTPUTS)
     assert "starting a local Dask cluster: 2 worker processes, one thread each" in result.stderr
@@ -146,7 +146,7 @@ def test_a_rerun_skips_the_complete_inputs_and_fits_the_failed_one_again(first_r
     assert code == 0, captured.err
     assert "3 inputs: 1 to fit, 2 complete already (skipped)" in captured.err
     assert f"connected to the Dask scheduler {cluster.scheduler_address}: 2 workers" in captured.err
-    assert captured.out.split() == [str(out / "bad"), str(out / "summary.csv")]
+    assert captured.out.split() == [str(out / "bad"), str(out / "summary.csv"), str(out / "report.html")]
     _, rows = read_summary(out)
     assert [(r["input"], r["status"]) for r in rows] == [(str(inputs / "a.xyz"), "skipped"),
                                                          (str(inputs / "b.xyz"), "skipped"), ("bad.xyz", "done")]

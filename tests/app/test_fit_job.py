@@ -31,7 +31,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     code = main(["fit", "--demo", "-o", str(out), "--vertices", "100", "--iterations", "60"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    names = ["control.ply", "limit.ply", "limit.glb", "report.json", "loss.png", "render.png"]
+    names = ["control.ply", "limit.ply", "limit.glb", "report.json", "report.html", "loss.png", "render.png"]
     assert captured.out.split() == [str(out / n) for n in names]
     assert "error" not in captured.err and "[mi-loop" in captured.err        # progress on stderr
     assert sorted(p.name for p in out.iterdir()) == sorted(names)            # and nothing else

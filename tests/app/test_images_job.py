@@ -37,7 +37,7 @@ def test_fit_images_writes_a_coloured_control_mesh_report_and_pictures(capture, 
     assert main(["fit-images", str(capture), "-o", str(out), *FAST]) == 0
     printed = capsys.readouterr().out.split()
     assert printed == [str(out / name) for name in ("control.ply", "limit.ply", "limit.glb", "report.json",
-                                                    "progress.png", "loss.png")]
+                                                    "report.html", "progress.png", "loss.png")]
     V, F = io.read_mesh(out / "control.ply")
     colors = io.read_vertex_colors(out / "control.ply")
     assert colors.shape == V.shape and (colors >= 0).all() and (colors <= 1).all()

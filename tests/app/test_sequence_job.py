@@ -514,7 +514,7 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
         expected += [out / "control" / f"{t:04d}.ply", out / "limit" / f"{t:04d}.ply", out / "state" / f"{t:04d}.npz"]
         if t == 0:
             expected += [out / "sequence.json", out / "metrics.csv"]
-    expected += [out / "drift.png", out / "strip.png", out / "sequence.glb"]
+    expected += [out / "drift.png", out / "strip.png", out / "sequence.glb", out / "report.html"]
     assert captured.out.splitlines() == [str(p) for p in expected]
     written = sorted(p for p in out.rglob("*") if p.is_file())
     assert written == sorted(expected)                                 # and nothing else was written
