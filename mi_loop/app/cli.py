@@ -21,7 +21,8 @@ Subcommands
 ``mi-loop fit-batch INPUTS... -o OUTDIR [--scheduler ADDRESS | --workers N] [--sequences] ...``
     Fit many inputs on a Dask cluster, each like ``fit`` (or ``fit-sequence``)
     into ``OUTDIR/<name>/``; ``OUTDIR/summary.csv`` lists every input's status,
-    time, worker, error and metrics; exit status 1 when any input failed.
+    time, worker, error and metrics, ``OUTDIR/report.html`` the same with a
+    link to each input's report; exit status 1 when any input failed.
 ``mi-loop fit-images transforms.json -o OUTDIR [--vertices N] [--init sphere|hull|MESH] ...``
     Fit a Loop control mesh and its per-vertex albedo to calibrated photos
     (silhouettes and shading through Mitsuba's differentiable renderer,

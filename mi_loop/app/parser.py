@@ -296,7 +296,8 @@ def _sequence_options(p) -> None:
 
 BATCH_DESCRIPTION = ("Fit every INPUT like `mi-loop fit INPUT -o OUTDIR/<name>/` (with --sequences: like "
                      "fit-sequence) on a Dask cluster; OUTDIR/summary.csv lists each input's status, time, worker, "
-                     "error and metrics. A complete OUTDIR/<name>/ is skipped when the batch runs again (remove it "
+                     "error and metrics, OUTDIR/report.html the same with a link to each input's report. A "
+                     "complete OUTDIR/<name>/ is skipped when the batch runs again (remove it "
                      "to refit), a failed input is fitted again. Not taken with --sequences (they belong to one "
                      "sequence or run): --images, --emitters, --reference, --animation, --fps, --resume.")
 
@@ -308,7 +309,8 @@ def _batch_parser(sub, common) -> None:
                        help="sequences (directories of frames or NPZ files) or quoted globs of them"
                        if sequences else "point-cloud or mesh files (as for fit) or quoted globs of them")
         p.add_argument("-o", "--output", required=True, type=Path,
-                       help="output directory: OUTDIR/<input name>/ per input, OUTDIR/summary.csv")
+                       help="output directory: OUTDIR/<input name>/ per input, OUTDIR/summary.csv, "
+                            "OUTDIR/report.html")
         where = p.add_mutually_exclusive_group()
         where.add_argument("--scheduler", metavar="ADDRESS",
                            help="run on a running Dask cluster: its scheduler's address (tcp://host:port) or "
