@@ -684,9 +684,10 @@ def _run(inputs, out, options, template, resume, variant, log, *, images=None, e
     paths += _pictures(run_, log)
     finished = read_result(out)                  # every finished frame, resumed ones too, read back from control/
     view = sequence_view(finished, view_level)   # (V (T, k, 3), F, N (T, k, 3), colours or None): the viewer's
-    page = _report_html(run_, finished, view, float(state.get("fps", fps)))
+    rate = float(state.get("fps", fps))           # sequence.json's: --resume keeps it
+    page = _report_html(run_, finished, view, rate)
     with io.staged_outputs(out) as stage:
-        write_view(stage / "sequence.glb", "glb", view, names=finished.names, fps=float(state.get("fps", fps)))
+        write_view(stage / "sequence.glb", "glb", view, names=finished.names, fps=rate)
         io.write_text(stage / "report.html", page)
     log.wrote(out / "sequence.glb", out / "report.html")
     return paths + [out / "sequence.glb", out / "report.html"]

@@ -265,10 +265,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     Pn = norm.forward(P)
 
     t = time.perf_counter()
-    noise = noise_estimate(Pn)
-    noise = {"sigma": noise["sigma"] * norm.scale, "spacing": noise["spacing"] * norm.scale,
-             "ratio": noise["ratio"], "sigma_diagonal": noise["sigma_diagonal"], "estimated": noise["estimated"],
-             "alpha": "given" if alpha is not None else "clean data"}
+    noise = {**noise_estimate(P), "alpha": "given" if alpha is not None else "clean data"}    # the data's units
     timings["noise"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -310,9 +307,9 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     timings["energies"] = time.perf_counter() - t
 
     def fit_with(energies, a, step):
-        weights = {"alpha": a, "cover": cover if energies[1] is not None else 0.0, "fold": float(fold)}
-        return _optimise(op, fold_op, *energies[:1], arap, energies[1], V0, weights, max_iterations, tolerance,
-                         step)
+        data, cov = energies                # (IMLS, Coverage or None) of all the points, or of the kept ones
+        weights = {"alpha": a, "cover": cover if cov is not None else 0.0, "fold": float(fold)}
+        return _optimise(op, fold_op, data, arap, cov, V0, weights, max_iterations, tolerance, step)
 
     t = time.perf_counter()
     if alpha is None and noise["ratio"] > RATIO_CLEAN and len(Pn) >= MIN_POINTS:

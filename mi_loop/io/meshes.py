@@ -126,6 +126,19 @@ def _read(path, func: str) -> ControlMesh:
     return ControlMesh(V, F, n_split)
 
 
+def _written_mesh(func: str, V, F):
+    """``(V float64, F)`` of a mesh to write, checked: shapes and face indices (an empty ``F`` allowed)."""
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        fail(func, "V of shape (n, 3) with n > 0", f"shape {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        fail(func, "integer F of shape (m, 3)", f"{F.dtype} array of shape {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
+        fail(func, f"face indices in [0, {len(V)})", f"face {bad} = {F[bad].tolist()}")
+    return V, F
+
+
 def write_ply(path, V, F, normals=None, colors=None, creases=None) -> Path:
     """Write a triangle mesh as a binary little-endian PLY file, atomically.
 
@@ -160,15 +173,7 @@ def write_ply(path, V, F, normals=None, colors=None, creases=None) -> Path:
     ValueError
         If the arrays have the wrong shape or face or crease indices are out of range.
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-        fail("write_ply", "V of shape (n, 3) with n > 0", f"shape {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        fail("write_ply", "integer F of shape (m, 3)", f"{F.dtype} array of shape {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
-        fail("write_ply", f"face indices in [0, {len(V)})", f"face {bad} = {F[bad].tolist()}")
+    V, F = _written_mesh("write_ply", V, F)
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     header = ["ply", "format binary_little_endian 1.0", "comment written by mi_loop",
               f"element vertex {len(V)}", "property double x", "property double y", "property double z"]
@@ -259,23 +264,15 @@ def write_obj(path, V, F, normals=None) -> Path:
     >>> V.tolist(), F.tolist()
     ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1, 2]])
     """
-    V, F = np.asarray(V, dtype=np.float64), np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-        fail("write_obj", "V of shape (n, 3) with n > 0", f"shape {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        fail("write_obj", "integer F of shape (m, 3)", f"{F.dtype} array of shape {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        bad = int(np.flatnonzero((F < 0).any(1) | (F >= len(V)).any(1))[0])
-        fail("write_obj", f"face indices in [0, {len(V)})", f"face {bad} = {F[bad].tolist()}")
+    V, F = _written_mesh("write_obj", V, F)
     lines = ["# written by mi_loop", *(f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist())]
-    corner = "{0}"
+    face = "f {0} {1} {2}"
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != V.shape:
             fail("write_obj", f"normals of shape {V.shape}", f"shape {normals.shape}")
         lines += [f"vn {x:.9g} {y:.9g} {z:.9g}" for x, y, z in normals.tolist()]
-        corner = "{0}//{0}"
-    face = f"f {corner.format('{0}')} {corner.format('{1}')} {corner.format('{2}')}"
+        face = "f {0}//{0} {1}//{1} {2}//{2}"
     lines += [face.format(a, b, c) for a, b, c in (F + 1).tolist()]
     path = Path(path)
     with atomic_open(path) as f:
