@@ -64,7 +64,7 @@ SCAN = SHARED / "scans" / "bunny_rangescans_merged_stride3.ply"
 STATIC = SHARED / "static"
 NPS_TABLE1 = {"bunny": (1.347, 15.971, 5.39), "fandisk": (0.572, 8.743, 1.79)}  # P2S, HD (x1e-3), NAE (deg)
 STAGES = ("template", "operator", "energies", "optimisation", "total")
-SHORT = {"max_iterations": "max_it"}                   # fit() keyword -> table label
+SHORT = {"iterations": "max_it"}                   # fit() keyword -> table label
 FIT_OPTIONS: dict = {}                                 # --cover: passed to every fit() call
 
 
@@ -179,7 +179,7 @@ def bench_scan(args, out: list) -> None:
     for n, level in sizes:                      # package defaults: level-1 samples, alpha 0.001
         configs.append((n, level, "level1", {}, args.runs))
         configs += [(n, level, "level1", {"tolerance": t}, 1) for t in args.tolerance if n == 4667]
-        configs += [(n, level, "level1", {"max_iterations": k}, 1) for k in args.max_iterations]
+        configs += [(n, level, "level1", {"iterations": k}, 1) for k in args.iterations]
         if args.quick:
             continue
         configs.append((n, level, "vertices", {}, 1))

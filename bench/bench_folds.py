@@ -47,7 +47,7 @@ def run(name: str, fold: float | None, seed: int) -> list:
     return [name, "default" if fold is None else f"{fold:g}", f"{r.params['fold']:g}", str(seed),
             f"{100 * flipped_fraction(V_lim, F_lim, V, F):.3f}",
             f"{crossed.sum()} ({100 * crossed.mean():.3f} %)", f"{1e3 * m['P2S']:.3f}", f"{1e3 * m['HD']:.2f}",
-            f"{m['NAE']:.2f}", str(r.params["iterations"]), f"{seconds:.1f}", load()]
+            f"{m['NAE']:.2f}", str(r.params["iterations_run"]), f"{seconds:.1f}", load()]
 
 
 def main(argv=None) -> None:

@@ -111,7 +111,7 @@ def bench_torus(args) -> None:
             V, F, _ = r.limit_mesh(3)
             d[key] = two_sided(V, F, clean, exact=datasets.torus_distance)
             ratio = "" if key == "before" else f"{d['after']['mean'] / d['before']['mean']:.2f}"
-            print(f"| {seed} | {key} | {r.params['alpha']:.3g} | {r.params['iterations']} | {seconds:.1f} | "
+            print(f"| {seed} | {key} | {r.params['alpha']:.3g} | {r.params['iterations_run']} | {seconds:.1f} | "
                   f"{d[key]['mean']:.3e} | {d[key]['rms']:.3e} | {ratio} | {load()} |", flush=True)
 
 

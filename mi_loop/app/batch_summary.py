@@ -81,7 +81,7 @@ def read_metrics(output: Path, sequence: bool) -> dict:
                 **{k: last.get(k, "") for k in SEQUENCE_METRICS[2:]}}
     report = json.loads((output / "report.json").read_text())
     return {**{k: report["metrics"].get(k, "") for k in FIT_METRICS[:-2]},
-            "iterations": report["params"].get("iterations", ""), "converged": report.get("converged", "")}
+            "iterations": report["params"].get("iterations_run", ""), "converged": report.get("converged", "")}
 
 
 def write_summary(path: Path, names: list, rows: dict, sequence: bool) -> Path:

@@ -89,7 +89,7 @@ def _fit(P, N, template, options: FitOptions, log, mesh=None):
     noise = result.info["noise"]
     log.say(f"noise: {noise['sigma_diagonal']:.2e} of the diagonal, {noise['ratio']:.2f} x the point spacing; "
             f"ARAP weight {result.params['alpha']:g} ({noise['alpha']})")
-    n, converged = result.params["iterations"], result.converged
+    n, converged = result.params["iterations_run"], result.converged
     how = (f"converged after {n} iterations (best energy improved by less than {options.tolerance:g})"
            if converged else f"stopped at the iteration cap ({n}) before converging; raise --iterations")
     log.say(f"fitted {len(result.V)} control vertices: {how} ({result.timings['total']:.1f} s)")

@@ -151,7 +151,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
         report = {"input": str(capture), "params": asdict(options), "init": str(init or options.init),
                   "lighting": str(emitters) if emitters is not None else "constant environment, radiance 1",
                   "stages": result.stages, "parameters": {"control_points": result.V.size,
-                                                          "albedo": result.albedo.size if options.fit_albedo else 0},
+                                                          "albedo": result.albedo.size if options.albedo_lr > 0 else 0},
                   "views": [{"name": v.name, "loss_start": s, "loss_end": e} for v, s, e in
                             zip(shot.views, evaluation["start"]["losses"], evaluation["end"]["losses"])],
                   "timings_s": timings, "machine": platform.node(), "variant": variant}

@@ -21,7 +21,7 @@ from mi_loop.render.variant import DEFAULT_VARIANT
 __all__ = ["FLAGS", "build_parser", "flag"]
 
 #: Option field -> its flag, where the two names differ.
-FLAGS = {"n_vertices": "--vertices", "max_iterations": "--iterations", "geo_iterations": "--iterations",
+FLAGS = {"n_vertices": "--vertices", "iterations": "--iterations", "iterations": "--iterations",
          "resolution": "--res", "n_points": "--points",
          "geometric": "--image-only", "image": "--no-image"}
 
@@ -182,7 +182,7 @@ def _fit_options(p) -> None:
                    help="coverage weight: data points pull their nearest limit samples (default %(default)s; "
                         "0: off)")
     p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
-    p.add_argument("--iterations", dest="max_iterations", type=int, metavar="N", default=o.max_iterations,
+    p.add_argument("--iterations", dest="iterations", type=int, metavar="N", default=o.iterations,
                    help="iteration cap; the fit usually converges earlier (default %(default)s)")
     p.add_argument("--tolerance", type=float, default=o.tolerance,
                    help="relative improvement below which the fit has converged (default %(default)s)")
@@ -253,7 +253,7 @@ def _sequence_options(p) -> None:
     p.add_argument("--seen", type=float, default=o.seen,
                    help="image weight where the data covers the surface, relative to where it does not "
                         "(default %(default)s)")
-    p.add_argument("--image-smooth", type=float, default=o.image_smooth,
+    p.add_argument("--lam", "--image-smooth", type=float, default=o.lam,
                    help="lambda of the (I + lambda L)^-1 smoothing of the image gradient (default %(default)s; "
                         "0: off)")
     p.add_argument("--alpha", type=float, default=o.alpha,
@@ -274,7 +274,7 @@ def _sequence_options(p) -> None:
                         "difference between the render and the target render")
     p.add_argument("--mode", choices=["shading", "silhouette"], default=o.mode,
                    help="shaded images (default) or silhouettes only, for the rendered rig")
-    p.add_argument("--iterations", dest="geo_iterations", type=int, metavar="N", default=o.geo_iterations,
+    p.add_argument("--iterations", dest="iterations", type=int, metavar="N", default=o.iterations,
                    help="iterations per frame (default %(default)s)")
     p.add_argument("--first-iterations", type=int, metavar="N", default=o.first_iterations,
                    help="iterations of the first frame, from the template (default %(default)s)")
@@ -378,10 +378,10 @@ def _images_parser(sub, common) -> None:
                    help="step size relative to the visual hull's box diagonal (default %(default)s)")
     p.add_argument("--lam", type=float, default=o.lam,
                    help="lambda of the (I + lambda L) smooth parameterisation (default %(default)s; 0: plain)")
-    p.add_argument("--smooth", type=float, default=o.smooth,
+    p.add_argument("--laplacian", "--smooth", type=float, default=o.laplacian,
                    help="weight of the cage's Laplacian term (default %(default)s; 0: off)")
     p.add_argument("--albedo", type=float, default=o.albedo, help="start albedo, grey (default %(default)s)")
-    p.add_argument("--fixed-albedo", dest="fit_albedo", action="store_false",
+    p.add_argument("--fixed-albedo", dest="albedo_lr", action="store_const", const=0.0, default=o.albedo_lr,
                    help="keep the albedo at --albedo instead of estimating it")
     p.add_argument("--integrator", choices=INTEGRATORS, default=o.integrator,
                    help="differentiable integrator (default %(default)s)")

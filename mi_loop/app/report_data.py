@@ -185,7 +185,7 @@ def _fit_tables(report: dict) -> dict:
         tables["distance to the clean torus (relative to its bounding-box diagonal)"] = report["metrics_clean"]
     params = report["params"]
     tables["fit"] = {"control vertices": params.get("n_vertices", ""), "control faces": params.get("n_faces", ""),
-                     "iterations": params.get("iterations", ""), "converged": report["converged"],
+                     "iterations": params.get("iterations_run", ""), "converged": report["converged"],
                      "ARAP weight": params.get("alpha", ""), "seconds": report["timings_s"].get("total", "")}
     return tables
 

@@ -417,7 +417,7 @@ def _fit_frames(run: _Run, first, op, vertex_op, renderer, log) -> list:
 
     o = run.options
     paths, todo = [], list(range(run.done + 1, len(run.reader)))
-    steps = [o.first_iterations if t == 0 else o.geo_iterations for t in todo]
+    steps = [o.first_iterations if t == 0 else o.iterations for t in todo]
     with log.bar("fit-sequence") as update:
         for k, t in enumerate(todo):
             t0 = time.perf_counter()

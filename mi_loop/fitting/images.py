@@ -268,10 +268,10 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, tot
         if not np.isfinite(loss):
             raise FitError(f"fit_images(): expected a finite image loss, got {loss} at stage {k}, iteration {it}")
         g_x = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3)
-        g_x += (2.0 * options.smooth / (n * diag ** 2)) * (L.T @ (L @ x_np))
+        g_x += (2.0 * options.laplacian / (n * diag ** 2)) * (L.T @ (L @ x_np))
         opt_x.lr = options.lr * diag * options.lr_decay ** (it / max(1, stage["iterations"] - 1))
         x_np = param.to_points(opt_x.step(param.gradient(g_x)))
-        if options.fit_albedo:
+        if options.albedo_lr > 0:
             opt_c.x = np.clip(opt_c.step(np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)), 0.0, 1.0)
             c = opt_c.x
         history.append({"stage": k, "loss": loss, "time": time.perf_counter() - t0})
@@ -280,9 +280,9 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, tot
         sweep_losses.append(loss)
         if len(sweep_losses) == 2 * per_sweep:          # two sweeps of the photos: a less noisy mean
             mean = float(np.mean(sweep_losses))
-            stalled = previous is not None and mean > (1.0 - options.stall) * previous
+            stalled = previous is not None and mean > (1.0 - options.tolerance) * previous
             previous, sweep_losses = min(mean, previous or mean), []
-            if options.stall > 0 and stalled and it + 1 >= stage["iterations"] // 2:
+            if options.tolerance > 0 and stalled and it + 1 >= stage["iterations"] // 2:
                 return x_np, c, {"iterations": it + 1, "stalled": True, "width": views[0].camera.width,
                                  "height": views[0].camera.height}
     return x_np, c, {"iterations": stage["iterations"], "stalled": False, "width": views[0].camera.width,

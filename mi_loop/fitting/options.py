@@ -140,7 +140,7 @@ class FitOptions:
         thesis's default, faster), the points of a level-1 tessellation
         (about 4x the control vertices: closer fits), or four uniformly
         random points per face (drawn once with ``seed``).
-    max_iterations : int
+    iterations : int
         Iteration cap; the loop normally stops earlier on relative improvement.
     tolerance : float
         Relative improvement of the best energy below which the step halves
@@ -167,7 +167,7 @@ class FitOptions:
     alpha: float | None = None
     h0: float | None = None
     samples: str = SAMPLES
-    max_iterations: int = 400
+    iterations: int = 400
     tolerance: float = 5e-3
     cover: float = COVER
     seed: int = 0
@@ -178,7 +178,7 @@ class FitOptions:
         _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": (lambda v: v is None or _weight(v), WEIGHT[1]),
                       "fold": WEIGHT,
                       "h0": (lambda v: v is None or _positive_real(v), "a finite number > 0 (or None: automatic)"),
-                      "samples": SAMPLES_RULE, "max_iterations": COUNT, "tolerance": WEIGHT,
+                      "samples": SAMPLES_RULE, "iterations": COUNT, "tolerance": WEIGHT,
                       "cover": WEIGHT, "seed": SEED, "features": FEATURES_RULE})
 
     @property
@@ -216,7 +216,7 @@ class SequenceOptions:
         accurate geometry off. For mesh frames it is scaled by
         ``min(1, (2 sigma / p)^2)``, the mesh's roughness against the pixel
         width at the subject (see :mod:`mi_loop.fitting.sequence`).
-    image_smooth : float
+    lam : float
         ``lambda`` of the ``(I + lambda L)^-1`` smoothing of the image gradient (0: off).
     reach : int
         IMLS reaches ``h0 2^reach`` from a sample (``max_growths``); farther
@@ -237,7 +237,7 @@ class SequenceOptions:
         Of the rig's renders (photos are compared as they are).
     geometric, image : bool
         IMLS + coverage terms (False: image only, ARAP kept); the image term.
-    geo_iterations : int
+    iterations : int
         Iterations per frame (the first half with stiff ARAP).
     first_iterations : int
         Iterations of the first frame (from the template).
@@ -268,7 +268,7 @@ class SequenceOptions:
     fold: float = 1.0
     beta: float = 10.0
     seen: float = 0.1
-    image_smooth: float = 10.0
+    lam: float = 10.0
     reach: int = 2
     views: int = 20
     views_per_iteration: int = 2
@@ -281,7 +281,7 @@ class SequenceOptions:
     mode: str = "shading"
     geometric: bool = True
     image: bool = True
-    geo_iterations: int = 200
+    iterations: int = 200
     first_iterations: int = 400
     stiff_factor: float = 100.0
     cover: float = COVER
@@ -296,7 +296,7 @@ class SequenceOptions:
 
     def __post_init__(self):
         _check(self, {"alpha": WEIGHT, "alpha_rest": WEIGHT, "fold": WEIGHT, "beta": WEIGHT,
-                      "image_smooth": WEIGHT, "cover": WEIGHT,
+                      "lam": WEIGHT, "cover": WEIGHT,
                       "stiff_factor": WEIGHT, "albedo_lr": WEIGHT, "albedo_refine": WEIGHT,
                       "seen": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
                       "reach": (lambda v: _is_int(v) and 0 <= v <= 10, "an integer in 0..10"),
@@ -306,7 +306,7 @@ class SequenceOptions:
                       "loss": (lambda v: v in LOSSES, f"one of {LOSSES}"),
                       "mode": (lambda v: v in IMAGE_MODES, f"one of {IMAGE_MODES}"),
                       "geometric": FLAG, "image": FLAG, "poisson_template": FLAG, "deterministic": FLAG,
-                      "geo_iterations": COUNT, "seed": SEED,
+                      "iterations": COUNT, "seed": SEED,
                       "n_vertices": N_VERTICES_RULE, "samples": SAMPLES_RULE, "n_points": COUNT})
         if not (_is_int(self.views_per_iteration) and 1 <= self.views_per_iteration <= self.views):
             raise OptionError("SequenceOptions", "views_per_iteration",
@@ -317,15 +317,18 @@ class SequenceOptions:
 
     #: Fields of older versions, ignored when read back (the image term no longer ends the frame).
     RETIRED = ("joint_iterations", "joint_lr_scale")
+    #: Fields of older versions under their current names.
+    RENAMED = {"geo_iterations": "iterations", "image_smooth": "lam"}
 
     @classmethod
     def from_dict(cls, values: dict) -> SequenceOptions:
         """Options from :func:`dataclasses.asdict` output; older files' missing fields get their defaults.
 
-        Retired fields (:attr:`RETIRED`) are dropped; any other unknown key is an error.
+        Retired fields (:attr:`RETIRED`) are dropped, renamed ones (:attr:`RENAMED`) read
+        under their current names; any other unknown key is an error.
         """
         names = {f.name for f in fields(cls)}
-        values = {k: v for k, v in values.items() if k not in cls.RETIRED}
+        values = {cls.RENAMED.get(k, k): v for k, v in values.items() if k not in cls.RETIRED}
         unknown = sorted(set(values) - names)
         if unknown:
             raise OptionError("SequenceOptions", "every key", f"one of the fields {sorted(names)}", unknown)
@@ -375,17 +378,15 @@ class ImageFitOptions:
     lr_decay : float
         Step at the end of each stage relative to its start (exponential decay), in (0, 1].
     albedo_lr : float
-        Adam step of the albedo.
+        Adam step of the albedo; 0: kept at ``albedo`` (``--fixed-albedo``).
     lam : float
         ``lambda`` of the ``(I + lambda L)`` parameterisation (:mod:`mi_loop.fitting.largesteps`).
-    smooth : float
+    laplacian : float
         Weight of the cage's uniform-Laplacian term ``|L x|^2 / (n d^2)`` (``d`` the
         box diagonal), which keeps control vertices spread; 0: off.
     albedo : float
         Start albedo (grey) in [0, 1].
-    fit_albedo : bool
-        Estimate the albedo (False: keep it at ``albedo``).
-    stall : float
+    tolerance : float
         A stage ends early (after half its iterations) when the mean loss over
         two sweeps of the photos falls by less than this fraction of the best
         earlier two-sweep mean; 0: never.
@@ -409,10 +410,9 @@ class ImageFitOptions:
     lr_decay: float = 1.0
     albedo_lr: float = 0.02
     lam: float = 20.0
-    smooth: float = 0.05
+    laplacian: float = 0.05
     albedo: float = 0.5
-    fit_albedo: bool = True
-    stall: float = 0.005
+    tolerance: float = 0.005
     triangles: int = 20_000
     integrator: str = "direct_projective"
     seed: int = 0
@@ -428,10 +428,10 @@ class ImageFitOptions:
                                      "an integer >= 16 (or None: the photos' size)"),
                       "spp": COUNT, "iterations": COUNT, "views_per_iteration": COUNT,
                       "lr": (_positive_real, "a finite number > 0"),
-                      "albedo_lr": (_positive_real, "a finite number > 0"),
+                      "albedo_lr": WEIGHT,
                       "lr_decay": (lambda v: _is_real(v) and 0 < v <= 1, "a number in (0, 1]"),
-                      "lam": WEIGHT, "smooth": WEIGHT,
+                      "lam": WEIGHT, "laplacian": WEIGHT,
                       "albedo": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
-                      "fit_albedo": FLAG, "stall": WEIGHT, "triangles": COUNT,
+                      "tolerance": WEIGHT, "triangles": COUNT,
                       "integrator": (lambda v: v in INTEGRATORS, f"one of {INTEGRATORS}"),
                       "seed": SEED, "deterministic": FLAG})

@@ -25,7 +25,7 @@ between. It is balanced per control vertex:
   RMS of the geometric gradient over the vertices the data supports, so that
   ``beta`` is a relative weight whatever the units of the two losses;
 - the image gradient is smoothed, ``(I + lambda L)^-1 g`` with
-  ``lambda = options.image_smooth`` (a Sobolev gradient, as in Nicolet et
+  ``lambda = options.lam`` (a Sobolev gradient, as in Nicolet et
   al. 2021): Adam normalises each coordinate's step, so unsmoothed Monte
   Carlo noise would move vertices by full steps where depth does not hold them;
 - each vertex's image weight is ``beta k (w + (1 - w) (1 - s_i))``,
@@ -206,7 +206,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     Adam on the gradients of ``E_t`` (module docstring): ``iterations``
-    steps (default ``options.geo_iterations``), the first half with ARAP
+    steps (default ``options.iterations``), the first half with ARAP
     ``options.stiff_factor`` times stiffer, the image gradient refreshed every
     ``options.image_every`` steps.
 
@@ -270,7 +270,7 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     from mi_loop.energies.imls import IMLS
 
     n = len(x0)
-    n_it = int(iterations or options.geo_iterations)
+    n_it = int(iterations or options.iterations)
     arap = ARAP(x0, F)                 # rest = previous frame's fit
     arap_rest = ARAP(rest, F) if rest is not None and options.alpha_rest > 0 else None
     imls = IMLS(points, normals, max_growths=options.reach) if options.geometric else None
@@ -300,10 +300,10 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         P = imls.points[::max(1, len(imls.points) // 2000)]
         support_radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
     smooth = None
-    if use_image and options.image_smooth > 0:
+    if use_image and options.lam > 0:
         from mi_loop.fitting.largesteps import SmoothParameterisation
 
-        smooth = SmoothParameterisation(F, n, options.image_smooth)
+        smooth = SmoothParameterisation(F, n, options.lam)
     order = []
     history = {"geo": [], "image": []}
     t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0

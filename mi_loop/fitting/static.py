@@ -96,7 +96,7 @@ class FitResult:
         ``selection``: the candidates tried and their held-out distances).
     converged : bool
         True when a stopping rule ended the loop (no more relative improvement
-        than ``tolerance``); False when it ran into ``max_iterations``.
+        than ``tolerance``); False when it ran into ``iterations``.
     creases : (c, 2) int64 numpy array or None
         Infinitely sharp crease edges of the control mesh (sharp features).
     """
@@ -160,7 +160,7 @@ def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
 
 def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=None,
         alpha: float = FitOptions.alpha, h0: float | None = FitOptions.h0, samples: str = FitOptions.samples,
-        max_iterations: int = FitOptions.max_iterations, tolerance: float = FitOptions.tolerance,
+        iterations: int = FitOptions.iterations, tolerance: float = FitOptions.tolerance,
         cover: float = FitOptions.cover, seed: int = FitOptions.seed, fold: float = FitOptions.fold,
         features: str = FitOptions.features, mesh=None, creases=None,
         progress=None) -> FitResult:
@@ -209,7 +209,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         of a level-1 tessellation, about 4x the control vertices: closer fits,
         fewer bulges between vertices) or ``'vertices'`` (the thesis's default,
         faster).
-    max_iterations : int
+    iterations : int
         Iteration cap; the loop normally stops on relative improvement.
     tolerance : float
         Relative improvement of the best energy below which the step halves
@@ -230,7 +230,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         does a template with sharp features (``features``), whose averaged
         reference normals point between the two sides of every sharp edge.
     progress : callable, optional
-        Called as ``progress(iteration, max_iterations, energy)``.
+        Called as ``progress(iteration, iterations, energy)``.
 
     Returns
     -------
@@ -256,7 +256,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     timings = {}
     P, N = check_oriented_points(points, normals, "fit")
     try:
-        FitOptions(n_vertices=n_vertices, alpha=alpha, h0=h0, samples=samples, max_iterations=max_iterations,
+        FitOptions(n_vertices=n_vertices, alpha=alpha, h0=h0, samples=samples, iterations=iterations,
                    tolerance=tolerance, cover=cover, seed=seed, fold=fold, features=features)
     except OptionError as exc:
         raise exc.renamed("fit") from None
@@ -309,7 +309,7 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     def fit_with(energies, a, step):
         data, cov = energies                # (IMLS, Coverage or None) of all the points, or of the kept ones
         weights = {"alpha": a, "cover": cover if cov is not None else 0.0, "fold": float(fold)}
-        return _optimise(op, fold_op, data, arap, cov, V0, weights, max_iterations, tolerance, step)
+        return _optimise(op, fold_op, data, arap, cov, V0, weights, iterations, tolerance, step)
 
     t = time.perf_counter()
     if alpha is None and noise["ratio"] > RATIO_CLEAN and len(Pn) >= MIN_POINTS:
@@ -325,8 +325,8 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     timings["total"] = time.perf_counter() - t_all
     params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
               "h0": float(imls.h0), "samples": samples, "n_samples": int(len(fid)),
-              "max_iterations": max_iterations, "tolerance": tolerance, "cover": cover, "seed": seed, "fold": fold,
-              "iterations": len(history["total"]), "normalisation_scale": norm.scale,
+              "iterations": iterations, "tolerance": tolerance, "cover": cover, "seed": seed, "fold": fold,
+              "iterations_run": len(history["total"]), "normalisation_scale": norm.scale,
               "features": features, "n_creases": 0 if creases is None else int(len(creases))}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
                      {"template": tinfo, "noise": noise}, converged,
@@ -367,7 +367,7 @@ def _check_template(template):
                          f"{type(template).__name__}")
 
 
-def _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, tolerance, progress):
+def _optimise(op, fold_op, imls, arap, coverage, V0, weights, iterations, tolerance, progress):
     """Adam on the control points; ``weights`` holds ``alpha``, ``cover`` and ``fold``.
 
     Schedule: the first step size is a third of the initial RMS IMLS residual
@@ -408,7 +408,7 @@ def _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, to
                        "try a smaller --alpha or another template")
     lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-6, 0.05 * mean_edge_length(V0, arap.F)))
     opt = dr.opt.Adam(lr=lr, params={"x": x0})
-    for it in range(max_iterations):
+    for it in range(iterations):
         x = ControlPoints(opt["x"])       # shared by the limit operator and ARAP
         Q = op.positions(x)
         Q_fold, normals = fold_op.positions_normals(x) if fold else (None, None)
@@ -446,7 +446,7 @@ def _optimise(op, fold_op, imls, arap, coverage, V0, weights, max_iterations, to
         if values[-1] < best_E:
             best_E, best_V = values[-1], Vn
         if progress is not None:
-            progress(it + 1, max_iterations, values[-1])
+            progress(it + 1, iterations, values[-1])
         if it - best_at > patience:
             decays += 1
             if decays > 3:

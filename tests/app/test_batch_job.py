@@ -114,7 +114,7 @@ def test_the_summary_has_a_row_per_input_with_its_worker_error_and_metrics(first
         report = json.loads((out / name / "report.json").read_text())
         for key in FIT_METRICS[:-2]:
             assert float(row[key]) == report["metrics"][key], key
-        assert int(row["iterations"]) == report["params"]["iterations"] == 5
+        assert int(row["iterations"]) == report["params"]["iterations_run"] == 5
         assert row["converged"] == str(report["converged"])
 
 
@@ -167,7 +167,7 @@ def test_a_failed_fit_leaves_no_output_directory(inputs, tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(mi_loop.io, "write_png", broken)       # after control.ply and limit.ply are staged
-    options = FitOptions(n_vertices=30, max_iterations=5)
+    options = FitOptions(n_vertices=30, iterations=5)
     row = fit_task(Task(inputs / "a.xyz", tmp_path / "a", options, {"variant": "llvm_ad_rgb"}))
     assert (row["status"], row["error"], row["worker"]) == ("failed", "disk full", "local")
     assert list(tmp_path.iterdir()) == []

@@ -40,7 +40,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     assert report["input"] == "built-in noisy torus"
     assert report["input_info"]["n_points"] == 20200                         # 20000 + 1 % outliers
     params = report["params"]
-    assert params["max_iterations"] == 60 and 1 <= params["iterations"] <= 60
+    assert params["iterations"] == 60 and 1 <= params["iterations_run"] <= 60
     assert params["samples"] == "level1" and params["seed"] == 0
     # the demo's noise is known (sigma 0.5 % of the diagonal): estimated, and the ARAP weight follows it
     noise = report["noise"]
@@ -76,7 +76,7 @@ def test_fit_demo_writes_control_limit_report_and_pictures(tmp_path, capsys):
     assert re.search(r"folds: \S+ % of the limit surface's area faces against the data, \d+ of \d+ limit faces", err)
     assert ("faces against the nearest data normal" in err) is (metrics["flipped_area_pct"] > 0)
     assert ("intersect another part of the surface" in err) is (metrics["self_intersecting_faces"] > 0)
-    n = params["iterations"]
+    n = params["iterations_run"]
     assert report["converged"] is (n < 60)
     assert (f"converged after {n} iterations" if n < 60 else "stopped at the iteration cap (60)") in err
 

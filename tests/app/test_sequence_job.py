@@ -520,7 +520,7 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
     assert written == sorted(expected)                                 # and nothing else was written
 
     state = json.loads((out / "sequence.json").read_text())
-    assert state["options"] == asdict(SequenceOptions(views=4, resolution=24, spp=2, geo_iterations=20,
+    assert state["options"] == asdict(SequenceOptions(views=4, resolution=24, spp=2, iterations=20,
                                                       first_iterations=30, image_every=10, n_points=2000,
                                                       views_per_iteration=2,
                                                       image=False, deterministic=True))

@@ -100,7 +100,7 @@ def test_coverage_pulls_the_fit_out_to_a_spike():
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "level1"), derivatives=False)
     miss = {}
     for weight in (0.0, 1.0):
-        options = SequenceOptions(cover=weight, image=False, geo_iterations=150, stiff_factor=1.0)
+        options = SequenceOptions(cover=weight, image=False, iterations=150, stiff_factor=1.0)
         V, _ = fit_frame(V0, F, P, N, op, None, options, frame=0, lr=0.02)
         VL, FL = limit_mesh(V, F, level=3)[:2]
         miss[weight] = closest_points(VL, FL, tip[None])[0][0]

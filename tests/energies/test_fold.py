@@ -88,8 +88,8 @@ def test_the_fold_term_unfolds_a_fold_that_lies_on_the_data():
     V0, F = z_folded_sphere(R)
     V_tpl, F_tpl = limit_surface(V0, F)
     assert flipped_fraction(V_tpl, F_tpl, R * Vs, Fs) > 0.05
-    folded = fit(P, N, template=(V0, F), fold=0.0, max_iterations=150)
-    unfolded = fit(P, N, template=(V0, F), max_iterations=150)
+    folded = fit(P, N, template=(V0, F), fold=0.0, iterations=150)
+    unfolded = fit(P, N, template=(V0, F), iterations=150)
     assert unfolded.params["fold"] == 0.01 and folded.history["fold"] == [0.0] * len(folded.history["fold"])
     V1, F1 = limit_surface(folded.V, folded.F)
     V2, F2 = limit_surface(unfolded.V, unfolded.F)

@@ -24,7 +24,7 @@ from mi_loop.render.multiview import Renderer
 def test_static_fits_are_bit_identical():
     assert dr.thread_count() > 1          # the regime this guards against needs several threads
     P, N, _ = datasets.noisy_torus_points(20_000)
-    runs = [fit(P, N, n_vertices=300, max_iterations=60) for _ in range(2)]
+    runs = [fit(P, N, n_vertices=300, iterations=60) for _ in range(2)]
     np.testing.assert_array_equal(runs[1].V, runs[0].V)
     assert runs[0].history["total"] == runs[1].history["total"]
     selection = runs[0].info["noise"]["selection"]            # noisy data: the held-out selection ran, and
@@ -58,7 +58,7 @@ def run_sequence(options, with_images=False):
 
 
 def test_geometric_sequence_fits_are_bit_identical():
-    options = SequenceOptions(image=False, geo_iterations=40)
+    options = SequenceOptions(image=False, iterations=40)
     a, b = run_sequence(options), run_sequence(options)
     for t, (x, y) in enumerate(zip(a, b)):
         np.testing.assert_array_equal(x, y, err_msg=f"frame {t}")
@@ -67,7 +67,7 @@ def test_geometric_sequence_fits_are_bit_identical():
 @pytest.mark.slow
 def test_image_term_with_deterministic_is_bit_identical():
     options = SequenceOptions(views=4, views_per_iteration=2, resolution=48, spp=4, target_spp=16,
-                              geo_iterations=12, image_every=2, deterministic=True)
+                              iterations=12, image_every=2, deterministic=True)
     a, b = run_sequence(options, True), run_sequence(options, True)
     for t, (x, y) in enumerate(zip(a, b)):
         np.testing.assert_array_equal(x, y, err_msg=f"frame {t}")
@@ -77,10 +77,10 @@ def test_static_fit_does_not_depend_on_the_thread_count():
     """The summation orders are fixed by the index tables, not by the thread schedule."""
     P, N, _ = datasets.noisy_torus_points(20_000)
     threads = dr.thread_count()
-    two = fit(P, N, n_vertices=300, max_iterations=40)
+    two = fit(P, N, n_vertices=300, iterations=40)
     dr.set_thread_count(1)
     try:
-        one = fit(P, N, n_vertices=300, max_iterations=40)
+        one = fit(P, N, n_vertices=300, iterations=40)
     finally:
         dr.set_thread_count(threads)
     np.testing.assert_array_equal(one.V, two.V)

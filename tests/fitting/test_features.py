@@ -106,8 +106,8 @@ def test_fit_keeps_a_cubes_edges_sharp_only_with_features(jit_variant):
 
     V, F = cube_mesh(12)
     P, N = sample_surface(V, F, 20000, seed=0)[:2]
-    sharp = fit(P, N, n_vertices=200, mesh=(V, F), max_iterations=60)
-    smooth = fit(P, N, n_vertices=200, mesh=(V, F), features="off", max_iterations=60)
+    sharp = fit(P, N, n_vertices=200, mesh=(V, F), iterations=60)
+    smooth = fit(P, N, n_vertices=200, mesh=(V, F), features="off", iterations=60)
     assert sharp.params["n_creases"] > 0 and smooth.params["n_creases"] == 0 and smooth.creases is None
     assert sharp.info["template"]["feature_curves"] == 1
     worst_sharp, worst_smooth = _worst_normal_deviation(sharp), _worst_normal_deviation(smooth)

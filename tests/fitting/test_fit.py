@@ -34,7 +34,7 @@ def small_template():
 
 def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
     P, N, clean = datasets.noisy_torus_points(4000, seed=1)
-    result = fit(P, N, n_vertices=120, max_iterations=150)
+    result = fit(P, N, n_vertices=120, iterations=150)
     assert isinstance(result, FitResult)
     assert result.V.shape == result.V_template.shape and result.F.shape[1] == 3
     assert abs(len(result.V) - 120) <= 12                     # "within a few percent" of the request
@@ -50,7 +50,7 @@ def test_fit_torus_with_automatic_template_approaches_the_clean_surface():
 
     total = result.history["total"]
     assert total[-1] < total[0]
-    n_it = result.params["iterations"]
+    n_it = result.params["iterations_run"]
     assert 1 <= n_it < 150                                      # stopped by the schedule, not the cap
     assert all(len(result.history[k]) == n_it for k in ("imls", "cover", "arap", "fold", "total", "lr"))
     parts = np.sum([result.history[k] for k in ("imls", "cover", "arap", "fold")], axis=0)
@@ -66,7 +66,7 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
     P, N = sphere_points(3000, radius=SPHERE_R, noise=0.01)
     V0, F0 = small_template()
     calls = []
-    result = fit(P, N, template=(V0, F0), max_iterations=80,
+    result = fit(P, N, template=(V0, F0), iterations=80,
                  progress=lambda i, total, energy: calls.append((i, total, energy)))
     np.testing.assert_array_equal(result.F, F0)
     assert result.V.shape == V0.shape
@@ -83,8 +83,8 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
     assert e_fit.mean() < 0.05 * e_tpl.mean(), (e_fit.mean(), e_tpl.mean())
     assert result.history["total"][-1] < 0.1 * result.history["total"][0]
 
-    # progress(i, max_iterations, energy) once per recorded iteration, energies as in the history
-    assert [c[0] for c in calls] == list(range(1, result.params["iterations"] + 1))
+    # progress(i, iterations, energy) once per recorded iteration, energies as in the history
+    assert [c[0] for c in calls] == list(range(1, result.params["iterations_run"] + 1))
     assert {c[1] for c in calls} == {80}
     np.testing.assert_allclose([c[2] for c in calls], result.history["total"], rtol=0)
 
@@ -93,7 +93,7 @@ def test_fit_keeps_a_user_templates_connectivity_and_reports_progress():
 def test_fit_with_other_sample_modes(mode):
     P, N = sphere_points(3000, radius=SPHERE_R, noise=0.01, seed=2)
     V0, F0 = small_template()
-    result = fit(P, N, template=(V0, F0), samples=mode, max_iterations=50, seed=3)
+    result = fit(P, N, template=(V0, F0), samples=mode, iterations=50, seed=3)
     expected = {"level1": len(tessellate(F0, 1)[0]), "random": 4 * len(F0)}[mode]
     assert result.params["samples"] == mode and result.params["n_samples"] == expected
     np.testing.assert_array_equal(result.F, F0)
@@ -108,8 +108,8 @@ def test_fit_is_in_the_inputs_units_and_ignores_normal_length():
     """Scaling by 100 and translating the data scales and translates the fit (normals x7 change nothing)."""
     P, N, _ = datasets.noisy_torus_points(3000, seed=2)
     shift = np.array([5.0, -3.0, 12.0])
-    a = fit(P, N, n_vertices=80, max_iterations=60)
-    b = fit(100.0 * P + shift, 7.0 * N, n_vertices=80, max_iterations=60)
+    a = fit(P, N, n_vertices=80, iterations=60)
+    b = fit(100.0 * P + shift, 7.0 * N, n_vertices=80, iterations=60)
     np.testing.assert_array_equal(b.F, a.F)
     np.testing.assert_allclose(b.V_template, 100.0 * a.V_template + shift, rtol=0, atol=1e-6)
     # Adam runs in float32 in the unit box: agreement to ~1e-6 of the object's size (~290 units)
@@ -277,18 +277,18 @@ def test_fit_rejects_a_non_positive_h0(cloud):
 @pytest.mark.parametrize("cover", [-1.0, float("inf")])
 def test_fit_rejects_a_bad_cover_weight(cloud, cover):
     with pytest.raises(ValueError, match=rf"fit\(\): expected cover to be a finite number >= 0, got {cover}"):
-        fit(*cloud, template=small_template(), cover=cover, max_iterations=5)
+        fit(*cloud, template=small_template(), cover=cover, iterations=5)
 
 
 @pytest.mark.parametrize("fold", [-0.1, float("nan")])
 def test_fit_rejects_a_bad_fold_weight(cloud, fold):
     with pytest.raises(ValueError, match=rf"^fit\(\): expected fold to be a finite number >= 0, got {fold}$"):
-        fit(*cloud, template=small_template(), fold=fold, max_iterations=5)
+        fit(*cloud, template=small_template(), fold=fold, iterations=5)
 
 
 def test_fit_rejects_a_nan_alpha(cloud):
     with pytest.raises(ValueError, match=r"fit\(\): expected alpha to be a finite number >= 0, got nan"):
-        fit(*cloud, template=small_template(), alpha=float("nan"), max_iterations=5)
+        fit(*cloud, template=small_template(), alpha=float("nan"), iterations=5)
 
 
 def test_fit_reports_divergence_as_fit_error(cloud, monkeypatch):
@@ -307,7 +307,7 @@ def test_fit_reports_divergence_as_fit_error(cloud, monkeypatch):
 
     monkeypatch.setattr(IMLS, "energy", poisoned)
     with pytest.raises(FitError, match=r"fit\(\): the optimisation diverged \(non-finite energy\)"):
-        fit(*cloud, template=small_template(), max_iterations=50)
+        fit(*cloud, template=small_template(), iterations=50)
     assert len(calls) > 5   # it retried before giving up
 
 
@@ -315,12 +315,12 @@ def test_fit_reports_divergence_as_fit_error(cloud, monkeypatch):
 
 def test_fit_rejects_a_negative_alpha(cloud):
     with pytest.raises(ValueError, match=r"alpha"):
-        fit(*cloud, template=small_template(), alpha=-1.0, max_iterations=2)
+        fit(*cloud, template=small_template(), alpha=-1.0, iterations=2)
 
 
 def test_fit_rejects_zero_iterations(cloud):
-    with pytest.raises(ValueError, match=r"max_iterations"):
-        fit(*cloud, template=small_template(), max_iterations=0)
+    with pytest.raises(ValueError, match=r"iterations"):
+        fit(*cloud, template=small_template(), iterations=0)
 
 
 def test_fit_rejects_a_template_that_is_not_a_pair(cloud):
@@ -330,7 +330,7 @@ def test_fit_rejects_a_template_that_is_not_a_pair(cloud):
 
 def test_fit_says_whether_it_converged(cloud):
     """A stopping rule ends a normal fit early (converged); a cap of 5 iterations does not."""
-    done = fit(*cloud, template=small_template(), max_iterations=400)
-    assert done.converged and done.params["iterations"] < 400
-    capped = fit(*cloud, template=small_template(), max_iterations=5)
-    assert not capped.converged and capped.params["iterations"] == 5
+    done = fit(*cloud, template=small_template(), iterations=400)
+    assert done.converged and done.params["iterations_run"] < 400
+    capped = fit(*cloud, template=small_template(), iterations=5)
+    assert not capped.converged and capped.params["iterations_run"] == 5

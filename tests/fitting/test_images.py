@@ -129,7 +129,7 @@ def test_the_same_seed_gives_the_same_fit_with_deterministic_renders(photos):
 
 def test_fixed_albedo_stays_grey(photos):
     options = ImageFitOptions(n_vertices=50, init="sphere", refinements=0, iterations=4, spp=2,
-                              fit_albedo=False, albedo=0.3)
+                              albedo_lr=0.0, albedo=0.3)
     result = fit_images(photos[2], LIGHT, options)
     np.testing.assert_array_equal(result.albedo, 0.3)
 

@@ -89,11 +89,11 @@ def test_the_split_does_not_follow_samples_drawn_from_the_same_seed():
 
 def test_clean_data_fits_with_the_clean_defaults():
     P, N, _ = datasets.noisy_torus_points(4000, noise=0.0, outliers=0.0, seed=1)
-    result = fit(P, N, n_vertices=120, max_iterations=5)
+    result = fit(P, N, n_vertices=120, iterations=5)
     assert result.params["alpha"] == ALPHA_CLEAN and result.info["noise"]["ratio"] < RATIO_CLEAN
     assert result.info["noise"]["alpha"] == "clean data" and "selection" not in result.info["noise"]
     assert result.info["template"]["point_weight"] == 4.0 and result.info["template"]["samples_per_node"] == 1.5
-    given = fit(P, N, n_vertices=120, max_iterations=5, alpha=0.5)
+    given = fit(P, N, n_vertices=120, iterations=5, alpha=0.5)
     assert given.params["alpha"] == 0.5 and given.info["noise"]["alpha"] == "given"
 
 

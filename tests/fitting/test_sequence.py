@@ -28,7 +28,7 @@ def test_fit_frame_geometric_terms_pull_a_small_sphere_onto_the_target():
     V0, F = sphere_mesh(0.4, 1)
     Vt, Ft = sphere_mesh(0.5, 3)
     P, N, _ = sample_surface(Vt, Ft, 3000, seed=0)
-    options = SequenceOptions(image=False, geo_iterations=60)
+    options = SequenceOptions(image=False, iterations=60)
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
     before = abs(limit_radius(V0, F) - 0.5)
     V, info = fit_frame(V0, F, P, N, op, None, options, frame=0, lr=0.02 * mean_edge_length(V0, F))
@@ -45,7 +45,7 @@ def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
     """geometric=False: silhouettes of a 0.45 sphere grow a 0.3 control sphere (limit ~0.27)."""
     V0, F = sphere_mesh(0.3, 1)
     options = SequenceOptions(views=4, views_per_iteration=2, resolution=24, spp=4, target_spp=16,
-                              level=1, mode="silhouette", geometric=False, geo_iterations=20, image_every=1)
+                              level=1, mode="silhouette", geometric=False, iterations=20, image_every=1)
     renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
     Vt, Ft = sphere_mesh(0.45)
     targets = renderer.targets(Vt, Ft, vertex_normals(Vt, Ft))

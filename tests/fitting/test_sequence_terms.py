@@ -128,7 +128,7 @@ def _weights_after_one_step(noise_sigma, *, half=False, complete=False):
     if half:
         P, N = P[P[:, 2] > 0], N[P[:, 2] > 0]
     options = SequenceOptions(views=2, views_per_iteration=1, resolution=128, spp=1, target_spp=2, level=0,
-                              geo_iterations=1, image_every=1)
+                              iterations=1, image_every=1)
     renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
     term = RenderedTerm(renderer, renderer.targets(Vt, Ft))
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=True)
