@@ -126,9 +126,10 @@ def pct(x):
 
 def run_fits(P, N, runs: int, **kw):
     """``runs`` fits with the same arguments; returns (results, per-stage list of seconds)."""
+    from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
 
-    results = [fit(P, N, **(FIT_OPTIONS | kw)) for _ in range(runs)]
+    results = [fit(P, N, FitOptions(**(FIT_OPTIONS | kw))) for _ in range(runs)]
     times = {s: [r.timings[s] for r in results] for s in STAGES}
     times["iterations"] = [len(r.history["total"]) for r in results]
     spread = max(float(np.abs(r.V - results[0].V).max()) for r in results)
@@ -224,9 +225,11 @@ def nps_row(label, V_lim, F_lim, target, ref=None):
 
 def fit_and_measure(P, N, target, cache, label, rows, out, ref=None, template_row=False, visible=False,
                     **kw):
+    from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
 
-    r = fit(P, N, n_vertices=1000, **(FIT_OPTIONS | kw))
+    mesh = kw.pop("mesh", None)
+    r = fit(P, N, FitOptions(**({"n_vertices": 1000} | FIT_OPTIONS | kw)), mesh=mesh)
     s = fit_summary(r)
     note = (f"{s['n_vertices']} cv, {r.params.get('n_creases', 0)} crease edges, {s['iterations']} it, "
             f"{r.timings['total']:.1f} s, alpha {r.params['alpha']:g}, h0 {s['h0']:.4g}")

@@ -29,6 +29,7 @@ def load() -> str:
 
 
 def run(name: str, fold: float | None, seed: int) -> list:
+    from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
     from mi_loop.io import read_mesh
     from mi_loop.io.points import load_oriented_points
@@ -39,7 +40,7 @@ def run(name: str, fold: float | None, seed: int) -> list:
     P, N, _ = load_oriented_points(path, seed=seed)      # the seed draws the samples too: the spread
     kw = {} if fold is None else {"fold": fold}
     t = time.perf_counter()
-    r = fit(P, N, n_vertices=1000, seed=seed, mesh=(V, F), **kw)
+    r = fit(P, N, FitOptions(n_vertices=1000, seed=seed, **kw), mesh=(V, F))
     seconds = time.perf_counter() - t
     V_lim, F_lim, _ = r.limit_mesh(3)
     crossed = self_intersections(V_lim, F_lim)

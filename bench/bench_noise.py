@@ -55,14 +55,15 @@ def before_this_change():
 
 def fit_both(P, N, seed):
     """``{"before": result, "after": result}`` at 1000 control vertices."""
+    from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
 
     out = {}
     with before_this_change() as kw:
         t = time.perf_counter()
-        out["before"] = (fit(P, N, seed=seed, **kw), time.perf_counter() - t)
+        out["before"] = (fit(P, N, FitOptions(seed=seed, **kw)), time.perf_counter() - t)
     t = time.perf_counter()
-    out["after"] = (fit(P, N, seed=seed), time.perf_counter() - t)
+    out["after"] = (fit(P, N, FitOptions(seed=seed)), time.perf_counter() - t)
     return out
 
 

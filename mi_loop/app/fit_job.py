@@ -32,7 +32,6 @@ from __future__ import annotations
 import json
 import platform
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 from mi_loop import io
@@ -78,8 +77,8 @@ def _fit(P, N, template, options: FitOptions, log, mesh=None):
 
     log.say(_stage_line(options))
     with log.bar("fitting") as update:
-        result = fit(P, N, template=template, mesh=mesh, progress=lambda i, n, E: update(i, n, f"E={E:.3e}"),
-                     **asdict(options))
+        result = fit(P, N, options, template=template, mesh=mesh,
+                     progress=lambda i, n, E: update(i, n, f"E={E:.3e}"))
     tinfo = result.info["template"]
     if "feature_curves" in tinfo:
         log.say(f"sharp features: {tinfo['feature_curves']} feature curves ({tinfo['feature_edges']} mesh edges "

@@ -6,13 +6,13 @@ passes a progress callback.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from mi_loop.errors import FitError
+from mi_loop.errors import FitError, fail
 from mi_loop.fitting.noise import ALPHA_CLEAN, RATIO_CLEAN, noise_estimate, template_options
-from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, OptionError
+from mi_loop.fitting.options import SAMPLE_MODES, FitOptions
 from mi_loop.fitting.selection import ALPHAS, MIN_POINTS, held_out_split, select_alpha
 from mi_loop.mesh.checks import check_oriented_points
 from mi_loop.mesh.geometry import mean_edge_length
@@ -158,11 +158,7 @@ def sample_parameters(F: np.ndarray, n_vertices: int, mode: str, seed: int = 0):
     raise ValueError(f"fit(): samples must be one of {SAMPLE_MODES}, got {mode!r}")
 
 
-def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=None,
-        alpha: float = FitOptions.alpha, h0: float | None = FitOptions.h0, samples: str = FitOptions.samples,
-        iterations: int = FitOptions.iterations, tolerance: float = FitOptions.tolerance,
-        cover: float = FitOptions.cover, seed: int = FitOptions.seed, fold: float = FitOptions.fold,
-        features: str = FitOptions.features, mesh=None, creases=None,
+def fit(points, normals, options: FitOptions | None = None, *, template=None, mesh=None, creases=None,
         progress=None) -> FitResult:
     """Fit a Loop control mesh to oriented points.
 
@@ -172,9 +168,16 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     ``E_cover`` the data-to-sample coverage term (:mod:`mi_loop.energies.coverage`)
     and ``E_fold`` the barrier on limit normals turned by more than 60 degrees
     from the normals of the nearest data points (:mod:`mi_loop.energies.fold`),
-    with Adam (Dr.Jit). The keyword arguments are the fields of
-    :class:`~mi_loop.fitting.options.FitOptions` (defaults and checks there),
-    so ``fit(P, N, **dataclasses.asdict(options))`` runs ``options``.
+    with Adam in the optimisation loop of :mod:`mi_loop.fitting.loop`: the
+    first step size is a third of the initial RMS IMLS residual (the distance
+    the surface has to move), capped by a twentieth of the mean control edge;
+    the step halves (back to the best iterate) when the energy has not improved
+    by ``tolerance`` for 12 iterations, and the loop stops after three halvings
+    or when the best energy improved by less than ``tolerance`` over 40
+    iterations. The IMLS neighbourhoods, coverage assignments and fold
+    references are rebuilt every 20 iterations and whenever a sample moved by
+    a quarter of the IMLS radius. A non-finite energy restores the best iterate
+    with a quarter of the step (five times at most).
 
     Parameters
     ----------
@@ -182,53 +185,23 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
         Data points.
     normals : (N, 3) float numpy array
         Unit normals at the data points (oriented outward).
-    n_vertices : int
-        Control vertices of the automatic template (ignored with ``template``).
+    options : FitOptions, optional
+        Every weight and setting (defaults and checks there). ``alpha=None``
+        chooses the ARAP weight: 0.001 on clean data (noise below a tenth of the
+        point spacing, :mod:`mi_loop.fitting.noise`), otherwise the best of
+        0.001, 0.01, 0.1, 1 on a tenth of the points held out of the fit
+        (:mod:`mi_loop.fitting.selection`); ``info['noise']`` says which and what
+        was measured. ``fold`` is off for a template with sharp features, whose
+        averaged reference normals point between the two sides of every sharp edge.
     template : tuple ``(V, F)``, optional
-        Control mesh to start from, in the data's units.
-    features : {'auto', 'off'}
-        With ``mesh`` and no ``template``: ``'auto'`` looks for sharp feature
-        curves in ``mesh`` and, when there are any, starts from
-        :func:`~mi_loop.fitting.template.feature_template` with its control
-        edges along them as infinitely sharp creases; ``'off'`` never does.
+        Control mesh to start from, in the data's units (``options.n_vertices`` is then ignored).
     mesh : tuple ``(V, F)``, optional
-        The surface mesh the points were sampled from, in the data's units
-        (for feature detection).
+        The surface mesh the points were sampled from, in the data's units:
+        with ``options.features == 'auto'`` and no ``template``, its sharp
+        feature curves, if any, give a template with infinitely sharp creases
+        along them (:func:`~mi_loop.fitting.template.feature_template`).
     creases : (c, 2) int array, optional
         Infinitely sharp crease edges of ``template``.
-    alpha : float, optional
-        ARAP weight; automatic by default: 0.001 on clean data (noise below a
-        tenth of the point spacing, :mod:`mi_loop.fitting.noise`), otherwise
-        the best of 0.001, 0.01, 0.1, 1 on a tenth of the points held out of
-        the fit (:mod:`mi_loop.fitting.selection`); ``info['noise']`` says
-        which and what was measured.
-    h0 : float, optional
-        IMLS support radius in the unit box; automatic from the point spacing.
-    samples : {'vertices', 'level1', 'random'}
-        Limit samples in the distance term: ``'level1'`` (default, the points
-        of a level-1 tessellation, about 4x the control vertices: closer fits,
-        fewer bulges between vertices) or ``'vertices'`` (the thesis's default,
-        faster).
-    iterations : int
-        Iteration cap; the loop normally stops on relative improvement.
-    tolerance : float
-        Relative improvement of the best energy below which the step halves
-        (after 12 iterations without it) and the loop stops (over 40
-        iterations, or after three halvings).
-    cover : float
-        Weight of the coverage term (:mod:`mi_loop.energies.coverage`): every data
-        point pulls its nearest limit sample along its normal, so thin parts
-        of the data are not left uncovered (default 3). 0 turns it off.
-    seed : int
-        Seed for random sampling.
-    fold : float
-        Weight of the fold barrier (default 0.01): a fold (an inside-out
-        strip of the limit surface) can lie on the data, where the distance
-        terms do not see it. It acts on the limit normals at a level-2
-        tessellation (:data:`FOLD_LEVEL`), against the mean normal of the 8
-        nearest data points (:data:`FOLD_NEIGHBOURS`). 0 turns it off; so
-        does a template with sharp features (``features``), whose averaged
-        reference normals point between the two sides of every sharp edge.
     progress : callable, optional
         Called as ``progress(iteration, iterations, energy)``.
 
@@ -238,82 +211,66 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
 
     Raises
     ------
+    TypeError
+        ``options`` not a :class:`FitOptions`.
     ValueError
-        Invalid data, options or template
-        (:class:`~mi_loop.fitting.options.OptionError` for an option).
+        Invalid data or template.
     FitError
         If the optimisation diverges (non-finite energy) and cannot recover.
+
+    Examples
+    --------
+    >>> import mi_loop
+    >>> from mi_loop.datasets import noisy_torus_points
+    >>> mi_loop.set_variant("llvm_ad_rgb")
+    >>> P, N, _ = noisy_torus_points(n_points=3000, seed=1)
+    >>> result = fit(P, N, FitOptions(n_vertices=100, iterations=30))
+    >>> result.V.shape[1], result.params["iterations_run"] <= 30
+    (3, True)
     """
     import drjit as dr  # noqa: F401  (loaded before the stage timers start)
     import mitsuba as mi  # noqa: F401
 
-    from mi_loop.ad.operator import LimitOperator
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
 
+    options = FitOptions() if options is None else options
+    if not isinstance(options, FitOptions):
+        fail("fit", "options to be a FitOptions", type(options).__name__, TypeError)
     t_all = time.perf_counter()
     timings = {}
     P, N = check_oriented_points(points, normals, "fit")
-    try:
-        FitOptions(n_vertices=n_vertices, alpha=alpha, h0=h0, samples=samples, iterations=iterations,
-                   tolerance=tolerance, cover=cover, seed=seed, fold=fold, features=features)
-    except OptionError as exc:
-        raise exc.renamed("fit") from None
     _check_template(template)
     norm = Normalisation.of(P)
     Pn = norm.forward(P)
 
     t = time.perf_counter()
-    noise = {**noise_estimate(P), "alpha": "given" if alpha is not None else "clean data"}    # the data's units
+    noise = {**noise_estimate(P), "alpha": "given" if options.alpha is not None else "clean data"}
     timings["noise"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    found = None
-    if template is None and mesh is not None and features == "auto":
-        from mi_loop.fitting.template import feature_template
-
-        found = feature_template(mesh[0], mesh[1], n_vertices)    # in the data's units: the decimation
-    if found is not None:                 # is not scale-invariant (the fandisk normalised got 252 creases, not 266)
-        V0, F, creases, tinfo = found     # sharp features: a planar-quadric template with creases along them
-        V0 = norm.forward(V0)
-        tinfo = {"source": "mesh with sharp features", **tinfo, "fold": "off: the creases hold the features"}
-        fold = 0.0      # its averaged reference normals fight sharp edges (fandisk: NAE 0.77 -> 1.89 with it)
-    elif template is None:
-        from mi_loop.fitting.template import make_template
-
-        V0, F, tinfo = make_template(Pn, N, n_vertices, seed=seed, **template_options(noise["ratio"]))
-        creases = None
-    else:
-        V0, F = template
-        V0, F, _ = validate_mesh(V0, F, "fit")
-        V0 = norm.forward(V0)
-        tinfo = {"source": "user"}
+    V0, F, creases, tinfo = _start(Pn, N, norm, options, template, mesh, creases, noise)
+    fold = 0.0 if "feature_curves" in tinfo else options.fold
     timings["template"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    fid, uv = sample_parameters(F, len(V0), samples, seed)
-    op = LimitOperator(F, len(V0), fid, uv, creases=creases, derivatives=False)
-    fold_op = None
-    if fold > 0:      # the barrier's samples: denser than the distance terms', so small folds show
-        fid_f, uv_f, _ = tessellate(F, FOLD_LEVEL)
-        fold_op = LimitOperator(F, len(V0), fid_f, uv_f, creases=creases, derivatives=True)
+    ops = _operators(F, len(V0), creases, options, fold)
     timings["operator"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    imls = IMLS(Pn, N, h0=h0)
-    coverage = Coverage(Pn, N, tree=imls.tree) if cover > 0 else None
+    imls = IMLS(Pn, N, h0=options.h0)
+    coverage = Coverage(Pn, N, tree=imls.tree) if options.cover > 0 else None
     arap = ARAP(V0, F)
     timings["energies"] = time.perf_counter() - t
 
     def fit_with(energies, a, step):
-        data, cov = energies                # (IMLS, Coverage or None) of all the points, or of the kept ones
-        weights = {"alpha": a, "cover": cover if cov is not None else 0.0, "fold": float(fold)}
-        return _optimise(op, fold_op, data, arap, cov, V0, weights, iterations, tolerance, step)
+        return _minimise(ops, energies, arap, V0, a, fold, options, step)
 
     t = time.perf_counter()
+    alpha = options.alpha
     if alpha is None and noise["ratio"] > RATIO_CLEAN and len(Pn) >= MIN_POINTS:
-        alpha, noise["selection"] = _select(Pn, N, F, creases, h0, cover, fit_with, seed, progress)
+        alpha, noise["selection"] = _select(Pn, N, F, creases, options, fit_with, progress)
         noise["alpha"] = f"selected on {noise['selection']['held_out_points']} held-out points"
         timings["selection"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -323,24 +280,58 @@ def fit(points, normals, *, n_vertices: int = FitOptions.n_vertices, template=No
     V, history, converged = fit_with((imls, coverage), alpha, progress)
     timings["optimisation"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
-    params = {"n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
-              "h0": float(imls.h0), "samples": samples, "n_samples": int(len(fid)),
-              "iterations": iterations, "tolerance": tolerance, "cover": cover, "seed": seed, "fold": fold,
-              "iterations_run": len(history["total"]), "normalisation_scale": norm.scale,
-              "features": features, "n_creases": 0 if creases is None else int(len(creases))}
+    params = {**asdict(options), "n_vertices": int(len(V0)), "n_faces": int(len(F)), "alpha": alpha,
+              "h0": float(imls.h0), "n_samples": ops[0].n_samples,
+              "fold": fold, "iterations_run": len(history["total"]), "normalisation_scale": norm.scale,
+              "n_creases": 0 if creases is None else int(len(creases))}
     return FitResult(norm.inverse(V), F, norm.inverse(V0), history, timings, params,
                      {"template": tinfo, "noise": noise}, converged,
                      None if creases is None else np.asarray(creases))
 
 
-def _select(Pn, N, F, creases, h0, cover, fit_with, seed, progress):
+def _start(Pn, N, norm, options, template, mesh, creases, noise):
+    """The control mesh to start from, in the unit box: ``(V0, F, creases, template info)``."""
+    found = None
+    if template is None and mesh is not None and options.features == "auto":
+        from mi_loop.fitting.template import feature_template
+
+        found = feature_template(mesh[0], mesh[1], options.n_vertices)    # in the data's units: the decimation
+    if found is not None:                 # is not scale-invariant (the fandisk normalised got 252 creases, not 266)
+        V0, F, creases, tinfo = found     # sharp features: a planar-quadric template with creases along them
+        # the fold barrier's averaged reference normals fight sharp edges (fandisk: NAE 0.77 -> 1.89 with it)
+        tinfo = {"source": "mesh with sharp features", **tinfo, "fold": "off: the creases hold the features"}
+        return norm.forward(V0), F, creases, tinfo
+    if template is None:
+        from mi_loop.fitting.template import make_template
+
+        V0, F, tinfo = make_template(Pn, N, options.n_vertices, seed=options.seed,
+                                     **template_options(noise["ratio"]))
+        return V0, F, None, tinfo
+    V0, F, _ = validate_mesh(template[0], template[1], "fit")
+    return norm.forward(V0), F, creases, {"source": "user"}
+
+
+def _operators(F, n, creases, options, fold):
+    """The limit operators of the distance terms and (with ``fold``) of the barrier's denser samples."""
+    from mi_loop.ad.operator import LimitOperator
+
+    fid, uv = sample_parameters(F, n, options.samples, options.seed)
+    op = LimitOperator(F, n, fid, uv, creases=creases, derivatives=False)
+    fold_op = None
+    if fold > 0:      # the barrier's samples: denser than the distance terms', so small folds show
+        fid_f, uv_f, _ = tessellate(F, FOLD_LEVEL)
+        fold_op = LimitOperator(F, n, fid_f, uv_f, creases=creases, derivatives=True)
+    return op, fold_op
+
+
+def _select(Pn, N, F, creases, options, fit_with, progress):
     """The ARAP weight whose fit to nine tenths of the points lies closest to the other tenth; ``(alpha, tried)``."""
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
 
-    held = held_out_split(len(Pn), seed)
-    imls = IMLS(Pn[~held], N[~held], h0=h0)
-    energies = (imls, Coverage(Pn[~held], N[~held], tree=imls.tree) if cover > 0 else None)
+    held = held_out_split(len(Pn), options.seed)
+    imls = IMLS(Pn[~held], N[~held], h0=options.h0)
+    energies = (imls, Coverage(Pn[~held], N[~held], tree=imls.tree) if options.cover > 0 else None)
 
     def held_out_error(V):
         return surface_distances(*limit_mesh(V, F, SELECTION_LEVEL, creases=creases)[:2], Pn[held]).mean()
@@ -351,114 +342,40 @@ def _select(Pn, N, F, creases, h0, cover, fit_with, seed, progress):
     return alpha, {**tried, "held_out_points": int(held.sum())}
 
 
-def _reference_normals(imls, Q):
-    """The fold barrier's reference normals at samples ``Q`` ((k, 3) NumPy): ``mi.Normal3f``."""
-    import mitsuba as mi
-
-    from mi_loop.ad.upload import upload_vec
-    from mi_loop.energies.fold import nearest_data_normals
-
-    return upload_vec(mi.Normal3f, nearest_data_normals(imls.tree, imls.normals, Q, FOLD_NEIGHBOURS))
-
-
 def _check_template(template):
     if template is not None and not (isinstance(template, (tuple, list)) and len(template) == 2):
         raise ValueError("fit(): expected template to be a pair (V, F) of control points and faces, got "
                          f"{type(template).__name__}")
 
 
-def _optimise(op, fold_op, imls, arap, coverage, V0, weights, iterations, tolerance, progress):
-    """Adam on the control points; ``weights`` holds ``alpha``, ``cover`` and ``fold``.
-
-    Schedule: the first step size is a third of the initial RMS IMLS residual
-    (the distance the surface has to move), capped by a twentieth of the mean
-    control edge; when the best energy has not improved by ``tolerance``
-    (relative) for ``patience`` iterations the step halves and the iterate
-    returns to the best one; after three halvings, or when the best energy
-    improved by less than ``tolerance`` over the last 40 iterations, it stops.
-    A non-finite energy restores the best iterate with a quarter of the step.
-    The fold barrier's reference normals (those of the data points nearest to
-    the samples) are refreshed with the IMLS neighbourhoods.
-    """
-    import drjit as dr
+def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOptions, progress):
+    """One run of the loop from ``V0`` (unit box); ``(V, history, converged)`` with ``V`` the best iterate."""
     import mitsuba as mi
 
-    from mi_loop.ad.control import ControlPoints
-    from mi_loop.energies.fold import fold_energy
+    from mi_loop.fitting import terms
+    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, Seeds, optimise
+    from mi_loop.fitting.optimisers import Adam, Constant
 
-    n = len(V0)
-    alpha_t = dr.opaque(mi.Float, weights["alpha"] / n)
-    cover, fold = weights["cover"], weights["fold"]
-    history = {"imls": [], "cover": [], "arap": [], "fold": [], "total": [], "lr": []}
-    best_E, best_V = np.inf, V0.copy()
-    best_at, decays, recoveries = 0, 0, 0
-    patience = 12
+    op, fold_op = ops
+    imls, coverage = energies
     x0 = mi.Float(V0.ravel().astype(np.float32))
-    refresh_at = np.array(op.positions(x0), dtype=np.float64).T
-    imls.update(refresh_at)
-    if coverage is not None:
-        coverage.update(refresh_at)
-    reference = None
-    if fold:
-        fold_at = np.array(fold_op.positions(x0), dtype=np.float64).T
-        reference = _reference_normals(imls, fold_at)
+    imls.update(np.array(op.positions(x0), dtype=np.float64).T)
     e0 = float(imls.energy(op.positions(x0), reduce="mean")[0])
     if not np.isfinite(e0):
-        raise FitError("fit(): the optimisation diverged (non-finite energy); "
-                       "try a smaller --alpha or another template")
+        raise FitError("fit(): expected a finite energy at the template, got IMLS distance "
+                       f"{e0} (try another template)")
     lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-6, 0.05 * mean_edge_length(V0, arap.F)))
-    opt = dr.opt.Adam(lr=lr, params={"x": x0})
-    for it in range(iterations):
-        x = ControlPoints(opt["x"])       # shared by the limit operator and ARAP
-        Q = op.positions(x)
-        Q_fold, normals = fold_op.positions_normals(x) if fold else (None, None)
-        Vn = x.numpy()
-        Qn = np.array(Q, dtype=np.float64).T
-        if np.abs(Qn - refresh_at).max() > 0.25 * imls.h0 or it % 20 == 0:
-            imls.update(Qn)
-            if coverage is not None:
-                coverage.update(Qn)
-            if fold:
-                fold_at = np.array(Q_fold, dtype=np.float64).T
-                reference = _reference_normals(imls, fold_at)
-            refresh_at = Qn
-        terms = [imls.energy(Q, reduce="mean"),
-                 cover * coverage.energy(Q) if coverage is not None else mi.Float(0.0),
-                 alpha_t * arap.energy(x, arap.rotations(Vn)),
-                 fold * fold_energy(normals, reference, FOLD_COSINE) if fold else mi.Float(0.0)]
-        E = terms[0] + terms[1] + terms[2] + terms[3]
-        dr.eval(*terms, E)
-        values = (*(float(t[0]) for t in terms), float(E[0]))
-        if not (np.all(np.isfinite(values)) and np.isfinite(Vn).all()):
-            recoveries += 1
-            if recoveries > 5:
-                raise FitError("fit(): the optimisation diverged (non-finite energy); "
-                               "try a smaller --alpha or another template")
-            lr *= 0.25
-            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
-            continue
-        dr.backward(E)
-        for key, val in zip(("imls", "cover", "arap", "fold", "total"), values):
-            history[key].append(val)
-        history["lr"].append(lr)
-        if values[-1] < best_E * (1.0 - tolerance):
-            best_at = it
-        if values[-1] < best_E:
-            best_E, best_V = values[-1], Vn
-        if progress is not None:
-            progress(it + 1, iterations, values[-1])
-        if it - best_at > patience:
-            decays += 1
-            if decays > 3:
-                return best_V, history, True
-            lr *= 0.5
-            best_at = it
-            opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(best_V.ravel().astype(np.float32))})
-            continue
-        window = 40
-        if it > window and history["total"][-window - 1] > 0:
-            old = min(history["total"][:-window])
-            if old - best_E < tolerance * old:
-                return best_V, history, True
-        opt.step()
-    return best_V, history, False
+    parts = [terms.Distance(imls, op)]
+    if coverage is not None:
+        parts.append(terms.Coverage(coverage, op, options.cover))
+    parts.append(terms.Rigidity(arap, alpha / len(V0)))
+    if fold > 0:
+        parts.append(terms.Fold(fold_op, fold, data=(imls.tree, imls.normals, FOLD_NEIGHBOURS), cosine=FOLD_COSINE))
+    result = optimise({"x": Parameter(x0, Adam(), Constant(lr))}, parts, iterations=options.iterations,
+                      seeds=Seeds(options.seed), refresh=Refresh(20, 0.25 * imls.h0, op),
+                      convergence=Convergence(options.tolerance, patience=12, halvings=3, window=40),
+                      failure=Failure("fit", recoveries=5, hint="try a smaller --alpha or another template"),
+                      keep="best", progress=progress)
+    history = {k: result.history.get(k, [0.0] * result.iterations) for k in ("imls", "cover", "arap", "fold")}
+    history |= {"total": result.history["total"], "lr": result.history["lr"]}
+    return result.values["x"], history, result.converged

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["connected_components", "edges", "euler_characteristic", "face_areas", "face_normals",
+__all__ = ["adjacency", "connected_components", "edges", "euler_characteristic", "face_areas", "face_normals",
            "largest_component", "mean_edge_length", "vertex_normals", "weld"]
 
 
@@ -102,6 +102,33 @@ def edges(F) -> np.ndarray:
     F = np.asarray(F, dtype=np.int64)
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), 1)
     return np.unique(E, axis=0)
+
+
+def adjacency(F, n: int):
+    """Return the vertex adjacency matrix of a triangle mesh.
+
+    Parameters
+    ----------
+    F : (m, 3) int NumPy array
+        Triangles.
+    n : int
+        Number of vertices.
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix, float64
+        ``A_ij = 1`` where ``i`` and ``j`` share an edge; its row sums are the valences.
+
+    Examples
+    --------
+    >>> adjacency(np.array([[0, 1, 2]]), 4).sum(axis=1).A1.tolist()
+    [2.0, 2.0, 2.0, 0.0]
+    """
+    import scipy.sparse as sp
+
+    E = edges(np.asarray(F))
+    return sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                         shape=(n, n)).tocsr()
 
 
 def mean_edge_length(V, F) -> float:

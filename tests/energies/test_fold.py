@@ -80,6 +80,7 @@ def test_the_fold_term_unfolds_a_fold_that_lies_on_the_data():
     Measured: flipped area 9.4 % of the template, 8.8 % after a fit without the barrier and 0 with
     the default weight; self-intersecting limit faces 5226 / 9559 / 31 of 40,960.
     """
+    from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
 
     R = 2.0
@@ -88,8 +89,8 @@ def test_the_fold_term_unfolds_a_fold_that_lies_on_the_data():
     V0, F = z_folded_sphere(R)
     V_tpl, F_tpl = limit_surface(V0, F)
     assert flipped_fraction(V_tpl, F_tpl, R * Vs, Fs) > 0.05
-    folded = fit(P, N, template=(V0, F), fold=0.0, iterations=150)
-    unfolded = fit(P, N, template=(V0, F), iterations=150)
+    folded = fit(P, N, FitOptions(fold=0.0, iterations=150), template=(V0, F))
+    unfolded = fit(P, N, FitOptions(iterations=150), template=(V0, F))
     assert unfolded.params["fold"] == 0.01 and folded.history["fold"] == [0.0] * len(folded.history["fold"])
     V1, F1 = limit_surface(folded.V, folded.F)
     V2, F2 = limit_surface(unfolded.V, unfolded.F)

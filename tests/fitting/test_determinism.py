@@ -12,7 +12,7 @@ import pytest
 
 from mi_loop import datasets
 from mi_loop.ad.operator import LimitOperator
-from mi_loop.fitting.options import SequenceOptions
+from mi_loop.fitting.options import FitOptions, SequenceOptions
 from mi_loop.fitting.sequence import RenderedTerm, fit_frame
 from mi_loop.fitting.static import fit, sample_parameters
 from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
@@ -24,7 +24,7 @@ from mi_loop.render.multiview import Renderer
 def test_static_fits_are_bit_identical():
     assert dr.thread_count() > 1          # the regime this guards against needs several threads
     P, N, _ = datasets.noisy_torus_points(20_000)
-    runs = [fit(P, N, n_vertices=300, iterations=60) for _ in range(2)]
+    runs = [fit(P, N, FitOptions(n_vertices=300, iterations=60)) for _ in range(2)]
     np.testing.assert_array_equal(runs[1].V, runs[0].V)
     assert runs[0].history["total"] == runs[1].history["total"]
     selection = runs[0].info["noise"]["selection"]            # noisy data: the held-out selection ran, and
@@ -77,10 +77,10 @@ def test_static_fit_does_not_depend_on_the_thread_count():
     """The summation orders are fixed by the index tables, not by the thread schedule."""
     P, N, _ = datasets.noisy_torus_points(20_000)
     threads = dr.thread_count()
-    two = fit(P, N, n_vertices=300, iterations=40)
+    two = fit(P, N, FitOptions(n_vertices=300, iterations=40))
     dr.set_thread_count(1)
     try:
-        one = fit(P, N, n_vertices=300, iterations=40)
+        one = fit(P, N, FitOptions(n_vertices=300, iterations=40))
     finally:
         dr.set_thread_count(threads)
     np.testing.assert_array_equal(one.V, two.V)

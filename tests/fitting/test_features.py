@@ -101,13 +101,13 @@ def _worst_normal_deviation(result):
 
 
 def test_fit_keeps_a_cubes_edges_sharp_only_with_features(jit_variant):
-    from mi_loop.fitting import fit
+    from mi_loop.fitting import FitOptions, fit
     from mi_loop.mesh.sampling import sample_surface
 
     V, F = cube_mesh(12)
     P, N = sample_surface(V, F, 20000, seed=0)[:2]
-    sharp = fit(P, N, n_vertices=200, mesh=(V, F), iterations=60)
-    smooth = fit(P, N, n_vertices=200, mesh=(V, F), features="off", iterations=60)
+    sharp = fit(P, N, FitOptions(n_vertices=200, iterations=60), mesh=(V, F))
+    smooth = fit(P, N, FitOptions(n_vertices=200, features="off", iterations=60), mesh=(V, F))
     assert sharp.params["n_creases"] > 0 and smooth.params["n_creases"] == 0 and smooth.creases is None
     assert sharp.info["template"]["feature_curves"] == 1
     worst_sharp, worst_smooth = _worst_normal_deviation(sharp), _worst_normal_deviation(smooth)
@@ -133,10 +133,10 @@ def test_fit_cli_writes_the_creases_into_control_ply(tmp_path, capsys):
 
 
 def test_features_option_rejected(tmp_path, capsys):
-    from mi_loop.fitting import fit
+    from mi_loop.fitting import FitOptions
 
-    with pytest.raises(ValueError, match=exactly("fit(): expected features to be 'auto' or 'off', got 'on'")):
-        fit(np.random.default_rng(0).standard_normal((50, 3)), np.tile([0.0, 0, 1], (50, 1)), features="on")
+    with pytest.raises(ValueError, match=exactly("FitOptions(): expected features to be 'auto' or 'off', got 'on'")):
+        FitOptions(features="on")
     with pytest.raises(SystemExit):
         main(["fit", "--demo", "-o", str(tmp_path / "o"), "--features", "on"])
     assert "argument --features: invalid choice: 'on'" in capsys.readouterr().err

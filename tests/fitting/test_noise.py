@@ -7,6 +7,7 @@ import pytest
 
 from mi_loop import datasets
 from mi_loop.fitting.noise import ALPHA_CLEAN, RATIO_CLEAN, RATIO_NOISY, noise_estimate, template_options
+from mi_loop.fitting.options import FitOptions
 from mi_loop.fitting.selection import ALPHAS, held_out_split, select_alpha
 from mi_loop.fitting.static import fit
 from mi_loop.metrics import two_sided
@@ -89,11 +90,11 @@ def test_the_split_does_not_follow_samples_drawn_from_the_same_seed():
 
 def test_clean_data_fits_with_the_clean_defaults():
     P, N, _ = datasets.noisy_torus_points(4000, noise=0.0, outliers=0.0, seed=1)
-    result = fit(P, N, n_vertices=120, iterations=5)
+    result = fit(P, N, FitOptions(n_vertices=120, iterations=5))
     assert result.params["alpha"] == ALPHA_CLEAN and result.info["noise"]["ratio"] < RATIO_CLEAN
     assert result.info["noise"]["alpha"] == "clean data" and "selection" not in result.info["noise"]
     assert result.info["template"]["point_weight"] == 4.0 and result.info["template"]["samples_per_node"] == 1.5
-    given = fit(P, N, n_vertices=120, iterations=5, alpha=0.5)
+    given = fit(P, N, FitOptions(n_vertices=120, iterations=5, alpha=0.5))
     assert given.params["alpha"] == 0.5 and given.info["noise"]["alpha"] == "given"
 
 
@@ -102,7 +103,7 @@ def test_on_the_demo_torus_the_noise_aware_fit_is_closer_to_the_clean_surface():
     """The README demo's data: the automatic defaults against the clean-data ones, measured on the exact torus."""
     P, N, clean = datasets.noisy_torus_points()
     auto = fit(P, N)
-    fixed = fit(P, N, alpha=ALPHA_CLEAN)
+    fixed = fit(P, N, FitOptions(alpha=ALPHA_CLEAN))
     assert auto.info["noise"]["ratio"] > RATIO_NOISY * 0.9 and auto.params["alpha"] > 100 * ALPHA_CLEAN
     assert auto.info["template"]["point_weight"] < 0.5 and np.array_equal(fixed.V_template, auto.V_template)
     d = {}

@@ -1,0 +1,473 @@
+"""The one optimisation loop of mi_loop: parameters, terms, a refresh rule, a convergence test, seeds.
+
+The static fit (:func:`mi_loop.fitting.static.fit`), every stage of the image
+fit (:func:`mi_loop.fitting.images.fit_images`) and every frame of a sequence
+(:func:`mi_loop.fitting.sequence.fit_frame`) are configurations of
+:func:`optimise`; they differ in their :class:`Parameter` list, their terms
+(:mod:`mi_loop.fitting.terms`) and the rules below, never in the loop.
+
+One iteration:
+
+1. each parameter's point-space value (``x`` = ``P(u)`` for a smooth
+   parameterisation) becomes a leaf with gradients (:class:`State`);
+2. when the :class:`Refresh` rule says so, every term rebuilds what depends on
+   the iterate (neighbour lists, reference normals, image weights);
+3. the energy terms' values are summed into one Dr.Jit expression and
+   differentiated in one reverse pass;
+4. the render terms that are due compute their gradients by their own reverse
+   passes (one per view); a render term's control-point gradient is reused
+   until it is due again;
+5. the :class:`Convergence` test may stop the loop, or halve the step and go
+   back to the best iterate;
+6. each parameter's optimiser steps along its gradient, pulled back through
+   its parameterisation, with the step size of its schedule.
+
+No file I/O, no host copies of gradients: gradients stay Dr.Jit arrays from
+the reverse pass to the optimiser.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mi_loop.errors import FitError, fail
+from mi_loop.fitting.optimisers import Adam, Schedule
+
+__all__ = ["Convergence", "LoopResult", "Parameter", "Refresh", "Seeds", "State", "optimise"]
+
+
+class Seeds:
+    """One tree of seeds: ``numpy.random.SeedSequence`` keyed by stage / frame / view / iteration.
+
+    Parameters
+    ----------
+    seed : int
+        The user's seed (``--seed``), >= 0.
+    *key : int
+        Path in the tree (e.g. the frame index): :meth:`child` appends to it.
+
+    Examples
+    --------
+    >>> Seeds(0).child(3).integer(7) == Seeds(0, 3).integer(7) != Seeds(0, 3).integer(8)
+    True
+    """
+
+    def __init__(self, seed: int, *key: int):
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            fail("Seeds", "an integer seed >= 0", seed)
+        self.seed, self.key = int(seed), tuple(int(k) for k in key)
+
+    def child(self, *key: int) -> Seeds:
+        """The sub-tree at ``key`` below this one."""
+        return Seeds(self.seed, *self.key, *key)
+
+    def sequence(self, *key: int) -> np.random.SeedSequence:
+        """The ``SeedSequence`` at ``key`` below this node."""
+        return np.random.SeedSequence(self.seed, spawn_key=self.key + tuple(int(k) for k in key))
+
+    def integer(self, *key: int) -> int:
+        """A 32-bit seed at ``key`` (a sampler's seed): distinct keys never share one by construction."""
+        return int(self.sequence(*key).generate_state(1, np.uint32)[0])
+
+    def generator(self, *key: int) -> np.random.Generator:
+        """A NumPy generator at ``key``."""
+        return np.random.default_rng(self.sequence(*key))
+
+
+@dataclass
+class Parameter:
+    """One optimised variable.
+
+    Attributes
+    ----------
+    value : mi.Float (k)
+        The optimiser's coordinates: the points themselves, or ``u`` of a
+        smooth parameterisation (:class:`~mi_loop.ad.smoothing.SmoothParameterisation`).
+    optimiser : Adam
+        Its state persists across calls of :func:`optimise` (a sequence's albedo).
+    schedule : Schedule
+        Step size per iteration.
+    parameterisation : SmoothParameterisation or None
+        ``points = parameterisation.to_points(value)``; None: the identity.
+    bounds : (float, float) or None
+        Each step is clipped to these (an albedo in [0, 1]).
+    """
+
+    value: object
+    optimiser: Adam
+    schedule: Schedule
+    parameterisation: object = None
+    bounds: tuple | None = None
+
+    def points(self):
+        """The point-space value (detached)."""
+        import drjit as dr
+
+        if self.parameterisation is None:
+            return dr.detach(self.value)
+        return self.parameterisation.solve(self.value)
+
+    def step(self, grad, factor: float, it: int) -> None:
+        """One optimiser step along ``grad`` (point space), the schedule's step size times ``factor``."""
+        import drjit as dr
+
+        if self.parameterisation is not None:
+            grad = self.parameterisation.solve(grad)
+        value = self.optimiser.step(self.value, grad, self.schedule(it) * factor)
+        if self.bounds is not None:
+            value = dr.clip(value, *self.bounds)
+            dr.eval(value)
+        self.value = value
+
+
+class State:
+    """What the terms see of one iteration: the iterate with gradients, evaluations shared between terms.
+
+    Attributes
+    ----------
+    it : int
+        Iteration.
+    values : dict of str to mi.Float
+        Point-space value of each parameter, gradients enabled.
+    grads : dict of str to mi.Float
+        After the energy terms' reverse pass: their gradient per parameter.
+    seeds : Seeds
+        The loop's seeds; ``seeds.integer(it, ...)`` for this iteration's samplers.
+    """
+
+    def __init__(self, it: int, params: dict, seeds: Seeds):
+        import drjit as dr
+
+        self.it, self.seeds, self.grads = it, seeds, {}
+        self.values = {}
+        for name, p in params.items():
+            v = p.points()
+            dr.enable_grad(v)
+            self.values[name] = v
+        self._cache = {}
+
+    @property
+    def x(self):
+        """The control points as :class:`~mi_loop.ad.control.ControlPoints` (one per iteration, shared)."""
+        if "x" not in self._cache:
+            from mi_loop.ad.control import ControlPoints
+
+            self._cache["x"] = ControlPoints(self.values["x"])
+        return self._cache["x"]
+
+    def numpy(self, name: str = "x") -> np.ndarray:
+        """``(n, 3)`` float64 NumPy copy of a parameter (once per iteration)."""
+        key = ("numpy", name)
+        if key not in self._cache:
+            self._cache[key] = np.array(self.values[name], dtype=np.float64).reshape(-1, 3)
+        return self._cache[key]
+
+    def host(self, op, what: str = "positions") -> np.ndarray:
+        """``(k, 3)`` float64 NumPy copy of :meth:`evaluate` (``'positions'`` or ``'normals'``), once per iteration."""
+        key = ("host", id(op), what)
+        if key not in self._cache:
+            self._cache[key] = np.array(self.evaluate(op, what), dtype=np.float64).T
+        return self._cache[key]
+
+    def evaluate(self, op, what: str = "positions"):
+        """``op.positions``, ``op.normals`` or ``op.positions_normals`` of :attr:`x`, once per iteration."""
+        key = (id(op), what)
+        if key not in self._cache:
+            self._cache[key] = getattr(op, what)(self.x)
+        return self._cache[key]
+
+
+@dataclass
+class Refresh:
+    """When terms rebuild what depends on the iterate (neighbour lists, reference normals, weights).
+
+    Attributes
+    ----------
+    every : int
+        Every ``every`` iterations, the first included.
+    move : float or None
+        Also whenever a sample of ``probe`` moved by more than this (any
+        coordinate) since the last refresh; None: never.
+    probe : LimitOperator or None
+        The samples ``move`` watches.
+    """
+
+    every: int = 20
+    move: float | None = None
+    probe: object = None
+    _at: object = field(default=None, repr=False)
+
+    def due(self, state: State) -> bool:
+        import drjit as dr
+
+        if state.it % self.every == 0 or self._at is None:
+            return True
+        if self.move is None:
+            return False
+        Q = state.evaluate(self.probe)
+        moved = dr.max(dr.max(dr.abs(dr.detach(Q) - self._at)))
+        return bool(moved[0] > self.move)
+
+    def done(self, state: State) -> None:
+        import drjit as dr
+
+        if self.move is not None:
+            self._at = dr.detach(state.evaluate(self.probe))
+        else:
+            self._at = True
+
+
+@dataclass
+class Convergence:
+    """The stopping and step-halving rule on the monitored value (the total energy, or one term's loss).
+
+    Values are averaged over blocks of ``block`` iterations (1 for a
+    deterministic energy; two sweeps of the photos for a noisy image loss). A
+    block improves when its mean is below ``(1 - tolerance)`` times the best
+    earlier block mean. After ``patience`` blocks without improvement the
+    step halves and the iterate goes back to the best one; the loop stops at
+    the next such plateau once it has halved ``halvings`` times, or when the
+    best value improved by less than ``tolerance`` (relative) over the last
+    ``window`` blocks. Neither happens before iteration ``start``.
+
+    Attributes
+    ----------
+    tolerance : float
+        Relative improvement; 0: the loop runs all its iterations.
+    patience, halvings, window, block, start : int
+    monitor : str or None
+        The history key watched (None: the total energy).
+    """
+
+    tolerance: float = 0.0
+    patience: int = 12
+    halvings: int = 3
+    window: int = 40
+    block: int = 1
+    start: int = 0
+    monitor: str | None = None
+
+    def __post_init__(self):
+        self._values, self._blocks = [], []
+        self._best, self._best_at, self.decays = math.inf, 0, 0
+
+    def update(self, it: int, value: float) -> str:
+        """``'go'``, ``'halve'`` or ``'stop'`` after the value of iteration ``it``."""
+        if self.tolerance <= 0:
+            return "go"
+        self._values.append(value)
+        if len(self._values) < self.block:
+            return "go"
+        mean = float(np.mean(self._values)) if self.block > 1 else self._values[0]
+        self._values = []
+        self._blocks.append(mean)
+        k = len(self._blocks) - 1
+        if mean < self._best * (1.0 - self.tolerance):
+            self._best_at = k
+        self._best = min(self._best, mean)
+        if it + 1 < self.start:
+            return "go"
+        if k - self._best_at > self.patience:
+            if self.decays >= self.halvings:
+                return "stop"
+            self.decays += 1
+            self._best_at = k
+            return "halve"
+        w = self.window
+        if w and k > w and self._blocks[-w - 1] > 0:
+            old = min(self._blocks[:-w])
+            if old - self._best < self.tolerance * old:
+                return "stop"
+        return "go"
+
+
+@dataclass
+class LoopResult:
+    """What :func:`optimise` returns.
+
+    Attributes
+    ----------
+    values : dict of str to (k, 3) float64 NumPy arrays
+        Each parameter's point-space value: at the best monitored value
+        (``keep='best'``) or after the last step (``keep='last'``).
+    history : dict of lists
+        Per iteration: each energy term's (weighted) value, each render term's
+        loss (NaN where it was not due), ``total`` (the energy terms' sum) and
+        ``lr`` (of the first parameter).
+    iterations : int
+        Iterations run.
+    converged : bool
+        The convergence test stopped the loop (False: it ran all its iterations).
+    seconds : dict
+        Time in each render term (its renders and reverse passes).
+    """
+
+    values: dict
+    history: dict
+    iterations: int
+    converged: bool
+    seconds: dict = field(default_factory=dict)
+
+
+@dataclass
+class Failure:
+    """How a non-finite energy is reported (and whether the loop may recover from it).
+
+    Attributes
+    ----------
+    where : str
+        The public function, for the message (``'fit'``, ``'fit_frame'``).
+    context : str
+        What is being fitted (``'frame 3, '``, ``'stage 1, '``), before ``iteration N``.
+    recoveries : int
+        How often a non-finite energy may restore the best iterate with a quarter
+        of the step before the loop gives up.
+    hint : str
+        Appended to the message (what to try).
+    """
+
+    where: str = "optimise"
+    context: str = ""
+    recoveries: int = 0
+    hint: str = ""
+
+    def error(self, it: int, values: dict) -> FitError:
+        bad = next(((k, v) for k, v in values.items() if not np.isfinite(v)), ("control points", "non-finite"))
+        hint = f"; {self.hint}" if self.hint else ""
+        return FitError(f"{self.where}(): expected a finite energy, got {bad[0]} {bad[1]} at {self.context}"
+                        f"iteration {it} (the optimisation diverged{hint})")
+
+
+def optimise(params: dict, terms: list, *, iterations: int, seeds: Seeds, refresh: Refresh | None = None,
+             convergence: Convergence | None = None, failure: Failure | None = None, keep: str = "last",
+             progress=None) -> LoopResult:
+    """Run the optimisation loop (module docstring).
+
+    Parameters
+    ----------
+    params : dict of str to Parameter
+        The optimised variables; ``'x'``, the control points, first.
+    terms : list of Term
+        Energy and render terms (:mod:`mi_loop.fitting.terms`), summed in this order.
+    iterations : int
+        Most iterations.
+    seeds : Seeds
+        Seeds of this optimisation (render terms draw theirs from it).
+    refresh : Refresh, optional
+        When terms refresh (default: every 20 iterations).
+    convergence : Convergence, optional
+        Stopping rule (default: none, all iterations run).
+    failure : Failure, optional
+        How non-finite energies are reported (default: at once, as ``optimise()``).
+    keep : {'last', 'best'}
+        Return the values after the last step, or at the best monitored value.
+    progress : callable, optional
+        ``progress(done, iterations, value)`` after every iteration.
+
+    Returns
+    -------
+    LoopResult
+
+    Raises
+    ------
+    FitError
+        A non-finite energy after ``failure.recoveries`` recoveries.
+    """
+    import time
+
+    import drjit as dr
+
+    if keep not in ("last", "best"):
+        fail("optimise", "keep to be 'last' or 'best'", repr(keep))
+    refresh = refresh or Refresh()
+    convergence = convergence or Convergence()
+    failure = failure or Failure()
+    energy_terms = [t for t in terms if t.kind == "energy"]
+    render_terms = [t for t in terms if t.kind == "render"]
+    history = {t.name: [] for t in terms} | {"total": [], "lr": []}
+    seconds = {t.name: 0.0 for t in render_terms}
+    cached = {t.name: {} for t in render_terms}      # each render term's reusable gradients
+    first = next(iter(params.values()))
+    best = (math.inf, {k: dr.detach(p.value) for k, p in params.items()})
+    factor, recoveries, converged, it = 1.0, 0, False, -1
+    for it in range(iterations):
+        state = State(it, params, seeds)
+        if refresh.due(state):
+            for t in terms:
+                t.refresh(state)
+            refresh.done(state)
+        contributions = [t.energy(state) for t in energy_terms]
+        E = contributions[0]
+        for c in contributions[1:]:
+            E = E + c
+        dr.eval(*contributions, E)
+        values = {t.name: float(c[0]) for t, c in zip(energy_terms, contributions)} | {"total": float(E[0])}
+        if not all(np.isfinite(v) for v in values.values()) or not _finite(params):
+            recoveries += 1
+            if recoveries > failure.recoveries:
+                raise failure.error(it, values)
+            factor *= 0.25
+            _restore(params, best[1])
+            continue
+        dr.backward(E)
+        state.grads = {k: dr.grad(v) for k, v in state.values.items()}
+        grads = dict(state.grads)
+        losses = {}
+        for t in render_terms:
+            if it % t.every == 0:
+                t0 = time.perf_counter()
+                fresh, losses[t.name] = t.gradient(state)
+                seconds[t.name] += time.perf_counter() - t0
+                if not np.isfinite(losses[t.name]):
+                    raise failure.error(it, {t.name: losses[t.name]})
+                cached[t.name] = {k: g for k, g in fresh.items() if k in t.reuse}
+                _add(grads, fresh)
+            else:
+                _add(grads, cached[t.name])
+        for t in render_terms:
+            history[t.name].append(losses.get(t.name, math.nan))
+        for name, v in values.items():
+            history[name].append(v)
+        history["lr"].append(first.schedule(it) * factor)
+        watched = values["total"] if convergence.monitor is None else history[convergence.monitor][-1]
+        if watched < best[0]:
+            best = (watched, {k: dr.detach(p.value) for k, p in params.items()})
+        if progress is not None:
+            progress(it + 1, iterations, watched)
+        action = convergence.update(it, watched)
+        if action == "stop":
+            converged = True
+            break
+        if action == "halve":
+            factor *= 0.5
+            _restore(params, best[1])
+            continue
+        for name, p in params.items():
+            if name in grads:
+                p.step(grads[name], factor, it)
+    chosen = best[1] if keep == "best" else {k: p.value for k, p in params.items()}
+    out = {}
+    for k, p in params.items():
+        v = chosen[k] if p.parameterisation is None else p.parameterisation.solve(chosen[k])
+        out[k] = np.array(v, dtype=np.float64).reshape(-1, 3)
+    return LoopResult(out, history, len(history["total"]), converged, seconds)
+
+
+def _finite(params) -> bool:
+    import drjit as dr
+
+    return all(bool(dr.all(dr.isfinite(p.value))) for p in params.values())
+
+
+def _restore(params, values) -> None:
+    """Go back to ``values`` with fresh optimiser state (the moments belong to the abandoned path)."""
+    for k, p in params.items():
+        p.value = values[k]
+        p.optimiser.reset()
+
+
+def _add(grads: dict, extra: dict) -> None:
+    for k, g in extra.items():
+        grads[k] = grads[k] + g if k in grads else g

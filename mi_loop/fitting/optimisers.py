@@ -1,0 +1,188 @@
+"""Optimisers with state and step-size schedules for the fitting loop (:mod:`mi_loop.fitting.loop`).
+
+An optimiser owns the state of one flat Dr.Jit parameter (moments, step
+count) and nothing else: the loop hands it the current value and gradient and
+takes the new value back. Its state is saved with :meth:`Adam.state_dict` and
+restored with :meth:`Adam.load_state_dict`, so a run resumed from a saved
+state continues bit for bit. The step size is not the optimiser's business
+either: a :class:`Schedule` gives it per iteration (and the loop's
+convergence test may halve it).
+
+A second solver (Gauss-Newton, L-BFGS) plugs in the same way: an object with
+``step(value, grad, lr)``, ``reset()``, ``state_dict()`` and
+``load_state_dict()``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mi_loop.errors import fail
+
+__all__ = ["Adam", "Constant", "Exponential", "Schedule"]
+
+
+class Adam:
+    r"""Adam on one flat Dr.Jit array, optionally "uniform" (Nicolet et al. 2021).
+
+    Parameters
+    ----------
+    beta_1, beta_2 : float
+        Decay rates of the first and second moments, in [0, 1).
+    epsilon : float
+        Added to the root of the second moment, >= 0.
+    uniform : bool
+        Divide every coordinate's step by the largest second moment of all
+        coordinates instead of its own (the variant of "Large steps in inverse
+        rendering of geometry"): the direction of a smoothed gradient is kept.
+
+    Notes
+    -----
+    With ``g`` the gradient and ``t`` the step count after this step:
+
+    .. math::
+        m_t = \beta_1 m_{t-1} + (1 - \beta_1) g, \quad
+        v_t = \beta_2 v_{t-1} + (1 - \beta_2) g^2, \quad
+        x_t = x_{t-1} - \eta \frac{\sqrt{1 - \beta_2^t}}{1 - \beta_1^t} \frac{m_t}{\sqrt{v_t + \varepsilon^2}}
+
+    (``v_t`` replaced by ``max v_t`` when ``uniform``). The arithmetic is that of
+    ``drjit.opt.Adam`` operation for operation, so the two give the same
+    iterates bit for bit (``tests/fitting/test_optimisers.py``); unlike it,
+    this one keeps no parameter, its state can be saved and restored, and its
+    step size comes with each step (no kernel is recompiled when it changes).
+
+    Examples
+    --------
+    >>> import mitsuba as mi, mi_loop
+    >>> mi_loop.set_variant("llvm_ad_rgb")
+    >>> opt = Adam()
+    >>> x = opt.step(mi.Float([1.0, 2.0]), mi.Float([1.0, -1.0]), lr=0.1)
+    >>> [round(v, 4) for v in x.numpy().tolist()], opt.state_dict()["t"]
+    ([0.9, 2.1], 1)
+    """
+
+    def __init__(self, *, beta_1: float = 0.9, beta_2: float = 0.999, epsilon: float = 1e-8,
+                 uniform: bool = False):
+        for name, value in (("beta_1", beta_1), ("beta_2", beta_2)):
+            if not (isinstance(value, (int, float)) and 0 <= value < 1):
+                fail("Adam", f"{name} in [0, 1)", value)
+        if not (isinstance(epsilon, (int, float)) and math.isfinite(epsilon) and epsilon >= 0):
+            fail("Adam", "a finite epsilon >= 0", epsilon)
+        self.beta_1, self.beta_2, self.epsilon = float(beta_1), float(beta_2), float(epsilon)
+        self.uniform = bool(uniform)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the moments and the step count (the next step is a first step)."""
+        self.t, self.m, self.v = 0, None, None
+
+    def step(self, value, grad, lr: float):
+        """Return the value after one step along ``grad`` with step size ``lr`` (detached, evaluated).
+
+        Parameters
+        ----------
+        value, grad : mi.Float (k)
+            Current value and its gradient (same width).
+        lr : float
+            Step size, > 0.
+
+        Returns
+        -------
+        mi.Float (k)
+        """
+        import drjit as dr
+
+        value, grad = dr.detach(value), dr.detach(grad)
+        tp = type(value)
+        if dr.width(value) != dr.width(grad):
+            fail("Adam.step", f"a gradient of width {dr.width(value)}", dr.width(grad))
+        if self.m is None:
+            self.m, self.v = dr.opaque(tp, 0, dr.width(value)), dr.opaque(tp, 0, dr.width(value))
+        elif dr.width(self.m) != dr.width(value):
+            fail("Adam.step", f"a value of width {dr.width(self.m)} (the width of its state)", dr.width(value))
+        UInt = dr.uint32_array_t(tp)
+        Wide = dr.float64_array_t(tp)
+        t = UInt(self.t) + 1
+        m_t = dr.lerp(grad, self.m, self.beta_1)
+        v_t = dr.lerp(dr.square(grad), self.v, self.beta_2)
+        ema = tp(-dr.sqrt(1 - Wide(self.beta_2) ** t) / (1 - Wide(self.beta_1) ** t))
+        dr.make_opaque(ema)
+        scale = dr.opaque(tp, float(lr)) * ema
+        v_m = dr.max(v_t) if self.uniform else v_t
+        if self.epsilon <= 1e-6:
+            direction = m_t * dr.rsqrt(v_m + self.epsilon ** 2)
+        else:
+            direction = m_t / (dr.sqrt(v_m) + self.epsilon)
+        new = dr.fma(direction, scale, value)
+        dr.eval(new, m_t, v_t)
+        self.t, self.m, self.v = self.t + 1, m_t, v_t
+        return new
+
+    def state_dict(self) -> dict:
+        """The state as plain values: ``t`` (int) and, after a first step, ``m`` and ``v`` (float32 NumPy)."""
+        state = {"t": int(self.t)}
+        if self.m is not None:
+            state["m"] = np.array(self.m, dtype=np.float32)
+            state["v"] = np.array(self.v, dtype=np.float32)
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a :meth:`state_dict` (the next step continues as the saved optimiser would have).
+
+        Raises
+        ------
+        ValueError
+            A state without ``t``, or with only one of ``m`` and ``v``.
+        """
+        import mitsuba as mi
+
+        if "t" not in state or (("m" in state) != ("v" in state)):
+            fail("Adam.load_state_dict", "a state with 't' and, after a first step, both 'm' and 'v'",
+                 sorted(state))
+        self.t = int(np.asarray(state["t"]))
+        if "m" in state:
+            self.m = mi.Float(np.asarray(state["m"], dtype=np.float32).ravel())
+            self.v = mi.Float(np.asarray(state["v"], dtype=np.float32).ravel())
+        else:
+            self.m = self.v = None
+
+
+class Schedule:
+    """Step size per iteration; the base class is a constant ``lr``."""
+
+    def __init__(self, lr: float):
+        if not (isinstance(lr, (int, float, np.floating)) and math.isfinite(lr) and lr > 0):
+            fail(type(self).__name__, "a finite step size lr > 0", lr)
+        self.lr = float(lr)
+
+    def __call__(self, it: int) -> float:
+        return self.lr
+
+
+Constant = Schedule
+
+
+@dataclass
+class Exponential(Schedule):
+    """``lr * decay ** (it / (length - 1))``: from ``lr`` at the first iteration to ``lr * decay`` at the last.
+
+    Examples
+    --------
+    >>> s = Exponential(0.1, 0.5, 3)
+    >>> [round(s(i), 4) for i in range(3)]
+    [0.1, 0.0707, 0.05]
+    """
+
+    lr: float
+    decay: float
+    length: int
+
+    def __post_init__(self):
+        Schedule.__init__(self, self.lr)
+        if not (isinstance(self.decay, (int, float)) and 0 < self.decay <= 1):
+            fail("Exponential", "decay in (0, 1]", self.decay)
+
+    def __call__(self, it: int) -> float:
+        return self.lr * self.decay ** (it / max(1, self.length - 1))

@@ -1,0 +1,289 @@
+"""The terms of the fitting loop (:mod:`mi_loop.fitting.loop`): one object per energy, one interface.
+
+A term has a ``name`` (its key in the loop's history), a ``kind`` and a
+``refresh(state)`` hook that the loop calls under its refresh rule:
+
+- ``kind = 'energy'``: ``energy(state)`` returns its weighted value as a
+  differentiable Dr.Jit scalar of the iterate (``state.x``, the control points
+  shared by all terms of one iteration); the loop sums the energy terms and
+  differentiates them in one reverse pass.
+- ``kind = 'render'``: ``gradient(state)`` runs its own reverse passes (one per
+  rendered view) every ``every`` iterations and returns ``({name: gradient},
+  loss)``; the gradients of the parameters in ``reuse`` are added again on the
+  iterations in between.
+
+Geometric terms here: :class:`Distance` (IMLS), :class:`Coverage`,
+:class:`Rigidity` (ARAP), :class:`Fold` (barrier on turned limit normals),
+:class:`CageLaplacian`; the image term, :class:`ImageTerm`, renders the limit
+surface against photos or rendered targets.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["CageLaplacian", "Coverage", "Distance", "Fold", "ImageTerm", "Rigidity", "Term"]
+
+
+class Term:
+    """Base class: an energy term that needs no refresh."""
+
+    kind = "energy"
+    name = "term"
+
+    def refresh(self, state) -> None:
+        """Rebuild what depends on the iterate (called by the loop's refresh rule)."""
+
+    def energy(self, state):
+        """The weighted energy, ``mi.Float (1)``, differentiable with respect to ``state.values``."""
+        raise NotImplementedError
+
+
+class Distance(Term):
+    """``mean_j f(Q_j)^2``: the IMLS distance of the limit samples to the data (:class:`~mi_loop.energies.imls.IMLS`).
+
+    Parameters
+    ----------
+    imls : IMLS
+        Of the data points.
+    op : LimitOperator
+        The samples ``Q = op.positions(x)``.
+    facing : bool
+        Refresh the neighbour lists with the samples' limit normals, so that only
+        data points facing the same way count (``op`` needs derivatives).
+    """
+
+    name = "imls"
+
+    def __init__(self, imls, op, facing: bool = False):
+        self.imls, self.op, self.facing = imls, op, bool(facing)
+
+    def refresh(self, state) -> None:
+        self.imls.update(state.host(self.op, "positions"), state.host(self.op, "normals") if self.facing else None)
+
+    def energy(self, state):
+        return self.imls.energy(state.evaluate(self.op), reduce="mean")
+
+
+class Coverage(Term):
+    """``weight E_cover``: data points pull their nearest samples (:class:`~mi_loop.energies.coverage.Coverage`).
+
+    Parameters
+    ----------
+    coverage : mi_loop.energies.coverage.Coverage
+    op : LimitOperator
+        The samples (shared with :class:`Distance`).
+    weight : float
+    facing : bool
+        As for :class:`Distance`.
+    """
+
+    name = "cover"
+
+    def __init__(self, coverage, op, weight: float, facing: bool = False):
+        self.coverage, self.op, self.weight, self.facing = coverage, op, float(weight), bool(facing)
+
+    def refresh(self, state) -> None:
+        self.coverage.update(state.host(self.op, "positions"),
+                             state.host(self.op, "normals") if self.facing else None)
+
+    def energy(self, state):
+        return self.weight * self.coverage.energy(state.evaluate(self.op))
+
+
+class Rigidity(Term):
+    """``weight E_arap(x; rest)``: ARAP of the control mesh to a rest shape (:class:`~mi_loop.energies.arap.ARAP`).
+
+    Parameters
+    ----------
+    arap : ARAP
+        Built on the rest shape.
+    weight : float
+        Weight (already divided by the number of control points where the
+        fit normalises it so).
+    stiff : (float, int), optional
+        ``(factor, until)``: the weight is ``factor`` times larger before
+        iteration ``until`` (stiff to soft: thin parts follow the bulk first).
+    name : str
+        History key (two ARAP terms in one loop need two names).
+    """
+
+    def __init__(self, arap, weight: float, stiff=None, name: str = "arap"):
+        import drjit as dr
+        import mitsuba as mi
+
+        self.arap, self.name, self.stiff = arap, name, stiff
+        self._w = dr.opaque(mi.Float, float(weight))
+
+    def energy(self, state):
+        w = self._w
+        if self.stiff is not None and state.it < self.stiff[1]:
+            w = w * self.stiff[0]
+        return w * self.arap.energy(state.x, self.arap.rotations(state.numpy("x")))
+
+
+class Fold(Term):
+    """``weight mean_j max(0, c |r_j| - n_j . r_j)^2``: a barrier on limit normals turned from references.
+
+    Parameters
+    ----------
+    op : LimitOperator
+        The samples whose limit normals ``n_j`` are watched (with derivatives).
+    weight : float
+    reference : mi.Normal3f (k), optional
+        Fixed reference normals (a sequence: the previous frame's limit normals).
+    data : (cKDTree, (N, 3) NumPy array, int), optional
+        Instead of ``reference``: the data's k-d tree, normals and how many of
+        the nearest data normals to average into each sample's reference,
+        refreshed with the loop (:func:`~mi_loop.energies.fold.nearest_data_normals`).
+    cosine : float
+        Cosine of the free angle (default 60 degrees).
+    opaque : bool
+        The weight as an opaque Dr.Jit value instead of a literal (no effect on values).
+    """
+
+    name = "fold"
+
+    def __init__(self, op, weight: float, *, reference=None, data=None, cosine: float = 0.5, opaque: bool = False):
+        import drjit as dr
+        import mitsuba as mi
+
+        if (reference is None) == (data is None):
+            raise ValueError("Fold(): expected one of reference and data, got "
+                             f"{'both' if data is not None else 'neither'}")
+        self.op, self.reference, self.data, self.cosine = op, reference, data, float(cosine)
+        self.weight = dr.opaque(mi.Float, float(weight)) if opaque else float(weight)
+        self._what = "normals" if data is None else "positions_normals"
+
+    def refresh(self, state) -> None:
+        if self.data is None:
+            return
+        import mitsuba as mi
+
+        from mi_loop.ad.upload import upload_vec
+        from mi_loop.energies.fold import nearest_data_normals
+
+        tree, normals, k = self.data
+        Q = np.array(state.evaluate(self.op, self._what)[0], dtype=np.float64).T
+        self.reference = upload_vec(mi.Normal3f, nearest_data_normals(tree, normals, Q, k))
+
+    def energy(self, state):
+        from mi_loop.energies.fold import fold_energy
+
+        n = state.evaluate(self.op, self._what)
+        if self._what == "positions_normals":
+            n = n[1]
+        return self.weight * fold_energy(n, self.reference, self.cosine)
+
+
+class CageLaplacian(Term):
+    """``weight |L x|^2``, ``L = I - D^-1 A``: each control point against the mean of its neighbours.
+
+    Parameters
+    ----------
+    F : (m, 3) int NumPy array
+        Control faces.
+    n : int
+        Control points.
+    weight : float
+        Multiplies the sum over the control points.
+    """
+
+    name = "laplacian"
+
+    def __init__(self, F, n: int, weight: float):
+        import mitsuba as mi
+
+        from mi_loop.ad.sparse import IndexMap, SegmentSum
+        from mi_loop.ad.upload import upload_float
+        from mi_loop.mesh.geometry import edges
+
+        E = edges(F)
+        heads, tails = np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]]     # both directions of every edge
+        self._J, self._sum = IndexMap(tails, n), SegmentSum(heads, n)
+        degree = np.bincount(heads, minlength=n).astype(np.float64)
+        self._inv_degree = upload_float(1.0 / np.maximum(degree, 1.0))
+        self.weight, self.n = float(weight), int(n)
+        self._mi = mi
+
+    def energy(self, state):
+        import drjit as dr
+
+        P = state.x.points
+        mean = self._mi.Point3f(self._sum(self._J(P))) * self._inv_degree
+        return self.weight * dr.sum(dr.squared_norm(P - mean))
+
+
+class ImageTerm(Term):
+    """The image loss of the limit surface against photos or rendered targets, and its gradients.
+
+    Parameters
+    ----------
+    renderer : ImageRenderer
+        Scene of the cameras with the ``loop_subdiv`` shape; ``renderer.backward(x, c,
+        view_ids, seed=...)`` accumulates the gradients of the mean loss over
+        ``view_ids`` into ``x`` and ``c`` and returns the per-view losses.
+    albedo : mi.Float (3n)
+        The fixed per-control-vertex albedo, used when the loop has no
+        ``'albedo'`` parameter (otherwise the parameter's value is rendered and
+        receives gradients).
+    views_per_iteration : int
+        Views rendered per evaluation, a seeded sweep through all of them.
+    every : int
+        Iterations between evaluations; in between the control-point gradient is reused.
+    to_world : (float, (3,) array), optional
+        ``(scale, centre)``: the renderer's coordinates are ``x * scale +
+        centre`` of the loop's (a fit in the unit box against photos in the
+        capture's units); the gradient is mapped back.
+    shaping : object, optional
+        ``shaping(g, state) -> g`` post-processes the control-point gradient
+        (a sequence's smoothing and per-vertex weights), ``shaping.refresh(state)``
+        is called with the loop's refresh.
+    seeds : Seeds
+        The term's seeds: the view order and the renders' samplers.
+    """
+
+    kind = "render"
+    name = "image"
+    reuse = ("x",)
+
+    def __init__(self, renderer, albedo, *, views_per_iteration: int, every: int = 1, to_world=None,
+                 shaping=None, seeds):
+        self.renderer, self.albedo = renderer, albedo
+        self.k, self.every, self.to_world, self.shaping = int(views_per_iteration), int(every), to_world, shaping
+        self.n_views = len(renderer.views)
+        self._rng, self._seeds, self._order = seeds.generator(0), seeds, []
+
+    def refresh(self, state) -> None:
+        if self.shaping is not None:
+            self.shaping.refresh(state)
+
+    def views(self) -> list:
+        """The next ``views_per_iteration`` views of the seeded sweep."""
+        if len(self._order) < self.k:
+            self._order += self._rng.permutation(self.n_views).tolist()
+        ids, self._order = self._order[:self.k], self._order[self.k:]
+        return ids
+
+    def gradient(self, state):
+        import drjit as dr
+        import mitsuba as mi
+
+        x = dr.detach(state.values["x"])
+        if self.to_world is not None:
+            scale, centre = self.to_world
+            x = mi.Float(x * scale + dr.tile(mi.Float(np.asarray(centre, dtype=np.float32)), dr.width(x) // 3))
+        fit_albedo = "albedo" in state.values
+        c = mi.Float(dr.detach(state.values["albedo"])) if fit_albedo else self.albedo
+        dr.enable_grad(x)
+        if fit_albedo:
+            dr.enable_grad(c)
+        losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it))
+        g = dr.grad(x)
+        if self.to_world is not None:
+            g = g * self.to_world[0]
+        if self.shaping is not None:
+            g = self.shaping(g, state)
+        out = {"x": g}
+        if fit_albedo:
+            out["albedo"] = dr.grad(c)
+        return out, float(np.mean(losses))
