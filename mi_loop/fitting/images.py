@@ -5,16 +5,21 @@
 loss of :class:`~mi_loop.render.photo.PhotoRenderer` (silhouettes and shading)
 plus a small uniform-Laplacian term that keeps the cage spread:
 
-``E(x, c) = mean_k |R_k(x, c) - T_k|_1 + smooth |L x|^2 / (n d^2)``.
+``E(x, c) = mean_k |R_k(x, c) - T_k|_1 + laplacian |L x|^2 / (n d^2)``.
 
 Stages: the start mesh (an icosphere or a template of the visual hull) is
 refined ``refinements`` times by one exact Loop step (``x <- S x``, ``c <- S c``:
 the same limit surface and colour field, with four times the control
 faces), when the loss stalls or the stage's share of the iterations is
 spent; the images are rendered at half the resolution per coarser stage.
-Each step is a "large step" (:mod:`mi_loop.fitting.largesteps`): the
-gradient is smoothed by ``(I + lambda L)^{-1}`` over the cage and applied by a
-uniform Adam. No file I/O here (see :mod:`mi_loop.app.images_job`).
+Each stage is one run of the optimisation loop (:func:`mi_loop.fitting.loop.optimise`)
+with the image term and the cage's Laplacian term
+(:mod:`mi_loop.fitting.terms`). Each step is a "large step": the control points
+are parameterised as ``u = (I + lambda L) x`` (:mod:`mi_loop.ad.smoothing`,
+solved on the device), so the gradient is smoothed by ``(I + lambda L)^{-1}``
+over the cage, and applied by a uniform Adam; a stage ends early when the
+mean loss over two sweeps of the photos stops falling (the loop's convergence
+test). No file I/O here (see :mod:`mi_loop.app.images_job`).
 """
 from __future__ import annotations
 
@@ -22,10 +27,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
-from mi_loop.errors import FitError, fail
-from mi_loop.fitting.largesteps import AdamUniform, SmoothParameterisation, adjacency
+from mi_loop.errors import fail
+from mi_loop.fitting.loop import Seeds
 from mi_loop.fitting.options import ImageFitOptions
 
 __all__ = ["ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh", "tessellation_level"]
@@ -174,13 +178,6 @@ def stage_plan(options: ImageFitOptions, size: tuple[int, int], n_faces: int) ->
     return plan
 
 
-def _laplacian(F, n):
-    """``I - D^-1 A``: each control point minus the mean of its neighbours."""
-    A = adjacency(F, n)
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    return (sp.identity(n) - sp.diags(1.0 / deg) @ A).tocsr()
-
-
 def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start=None, progress=None):
     """Fit a Loop control mesh and its albedo to calibrated photos (module docstring).
 
@@ -224,14 +221,17 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     plan = stage_plan(options, size, len(F))
     total = sum(p["iterations"] for p in plan)
     done = 0
-    rng = np.random.default_rng(options.seed)
+    seeds = Seeds(options.seed)
     diag = float(np.linalg.norm(bbox[1] - bbox[0]))
     for k, stage in enumerate(plan):
         if k:
             V, F, c = refine(V, F, c)
         t_stage = time.perf_counter()
         V, c, info = _fit_stage(V, F, c, [v.resized(stage["scale"]) if stage["scale"] < 1 else v for v in views],
-                                emitters, options, stage, k, diag, rng, done, total, t0, result.history, progress)
+                                emitters, options, stage, k, diag, seeds, done, total, progress)
+        h = info.pop("history")
+        result.history += [{"stage": k, "loss": loss, "time": t_stage - t0 + s}
+                           for loss, s in zip(h["image"], h["time"])]
         done += info["iterations"]
         result.stages.append({"n_vertices": len(V), "level": stage["level"], "scale": stage["scale"],
                               **info, "time_s": time.perf_counter() - t_stage})
@@ -239,51 +239,38 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     return result
 
 
-def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, rng, done, total, t0, history, progress):
-    """Optimise one control mesh at one resolution; return ``V``, ``c`` and the stage's record."""
-    import drjit as dr
+def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, total, progress):
+    """Optimise one control mesh at one resolution: ``V``, ``c`` and the stage's record (with its history)."""
     import mitsuba as mi
 
+    from mi_loop.ad.smoothing import SmoothParameterisation
+    from mi_loop.fitting import terms
+    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, optimise
+    from mi_loop.fitting.optimisers import Adam, Constant, Exponential
     from mi_loop.render.photo import PhotoRenderer
 
-    n = len(V)
+    n, n_it = len(V), stage["iterations"]
     renderer = PhotoRenderer(V, F, c, views, emitters, level=stage["level"], spp=options.spp,
                              integrator=options.integrator, deterministic=options.deterministic)
-    param = SmoothParameterisation(F, n, options.lam)
-    L = _laplacian(F, n)
-    opt_x = AdamUniform(param.to_parameters(V), lr=options.lr * diag)
-    opt_c = AdamUniform(c, lr=options.albedo_lr, uniform=False)
+    smooth = SmoothParameterisation(F, n, options.lam)
+    albedo = mi.Float(np.asarray(c, dtype=np.float32).ravel())
+    params = {"x": Parameter(smooth.to_parameters(mi.Float(np.asarray(V, dtype=np.float32).ravel())),
+                             Adam(uniform=True), Exponential(options.lr * diag, options.lr_decay, n_it),
+                             parameterisation=smooth)}
+    if options.albedo_lr > 0:
+        params["albedo"] = Parameter(albedo, Adam(), Constant(options.albedo_lr), bounds=(0.0, 1.0))
+    parts = [terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
+                             seeds=seeds.child(k))]
+    if options.laplacian > 0:
+        parts.insert(0, terms.CageLaplacian(F, n, options.laplacian / (n * diag ** 2)))
     per_sweep = max(1, int(np.ceil(len(views) / options.views_per_iteration)))
-    order, sweep_losses, previous, stalled = [], [], None, False
-    x_np = V.copy()
-    for it in range(stage["iterations"]):
-        if len(order) < options.views_per_iteration:
-            order += rng.permutation(len(views)).tolist()
-        ids, order = order[:options.views_per_iteration], order[options.views_per_iteration:]
-        x = mi.Float(x_np.ravel().astype(np.float32))
-        a = mi.Float(c.ravel().astype(np.float32))
-        dr.enable_grad(x, a)
-        losses = renderer.backward(x, a, ids, seed=done + it + 1000 * options.seed)
-        loss = float(np.mean(losses))
-        if not np.isfinite(loss):
-            raise FitError(f"fit_images(): expected a finite image loss, got {loss} at stage {k}, iteration {it}")
-        g_x = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3)
-        g_x += (2.0 * options.laplacian / (n * diag ** 2)) * (L.T @ (L @ x_np))
-        opt_x.lr = options.lr * diag * options.lr_decay ** (it / max(1, stage["iterations"] - 1))
-        x_np = param.to_points(opt_x.step(param.gradient(g_x)))
-        if options.albedo_lr > 0:
-            opt_c.x = np.clip(opt_c.step(np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)), 0.0, 1.0)
-            c = opt_c.x
-        history.append({"stage": k, "loss": loss, "time": time.perf_counter() - t0})
-        if progress is not None:
-            progress(done + it + 1, total, k, loss)
-        sweep_losses.append(loss)
-        if len(sweep_losses) == 2 * per_sweep:          # two sweeps of the photos: a less noisy mean
-            mean = float(np.mean(sweep_losses))
-            stalled = previous is not None and mean > (1.0 - options.tolerance) * previous
-            previous, sweep_losses = min(mean, previous or mean), []
-            if options.tolerance > 0 and stalled and it + 1 >= stage["iterations"] // 2:
-                return x_np, c, {"iterations": it + 1, "stalled": True, "width": views[0].camera.width,
-                                 "height": views[0].camera.height}
-    return x_np, c, {"iterations": stage["iterations"], "stalled": False, "width": views[0].camera.width,
-                     "height": views[0].camera.height}
+    # stall: two sweeps of the photos whose mean loss falls by less than tolerance, after half the stage
+    stall = Convergence(options.tolerance, patience=0, halvings=0, window=0, block=2 * per_sweep,
+                        start=n_it // 2, monitor="image")
+    result = optimise(params, parts, iterations=n_it, seeds=seeds.child(k), refresh=Refresh(n_it),
+                      convergence=stall, failure=Failure("fit_images", context=f"stage {k}, "),
+                      progress=None if progress is None else (lambda i, _, loss: progress(done + i, total, k, loss)))
+    c_fit = result.values["albedo"] if "albedo" in result.values else np.asarray(c, dtype=np.float64)
+    return result.values["x"], c_fit, {"iterations": result.iterations, "stalled": result.converged,
+                                       "width": views[0].camera.width, "height": views[0].camera.height,
+                                       "history": result.history}

@@ -294,8 +294,8 @@ class LoopResult:
         (``keep='best'``) or after the last step (``keep='last'``).
     history : dict of lists
         Per iteration: each energy term's (weighted) value, each render term's
-        loss (NaN where it was not due), ``total`` (the energy terms' sum) and
-        ``lr`` (of the first parameter).
+        loss (NaN where it was not due), ``total`` (the energy terms' sum),
+        ``lr`` (of the first parameter) and ``time`` (seconds since the start).
     iterations : int
         Iterations run.
     converged : bool
@@ -386,7 +386,8 @@ def optimise(params: dict, terms: list, *, iterations: int, seeds: Seeds, refres
     failure = failure or Failure()
     energy_terms = [t for t in terms if t.kind == "energy"]
     render_terms = [t for t in terms if t.kind == "render"]
-    history = {t.name: [] for t in terms} | {"total": [], "lr": []}
+    history = {t.name: [] for t in terms} | {"total": [], "lr": [], "time": []}
+    t_start = time.perf_counter()
     seconds = {t.name: 0.0 for t in render_terms}
     cached = {t.name: {} for t in render_terms}      # each render term's reusable gradients
     first = next(iter(params.values()))
@@ -431,6 +432,7 @@ def optimise(params: dict, terms: list, *, iterations: int, seeds: Seeds, refres
         for name, v in values.items():
             history[name].append(v)
         history["lr"].append(first.schedule(it) * factor)
+        history["time"].append(time.perf_counter() - t_start)
         watched = values["total"] if convergence.monitor is None else history[convergence.monitor][-1]
         if watched < best[0]:
             best = (watched, {k: dr.detach(p.value) for k, p in params.items()})

@@ -277,7 +277,7 @@ class ImageTerm(Term):
         dr.enable_grad(x)
         if fit_albedo:
             dr.enable_grad(c)
-        losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it))
+        losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it) >> 12)
         g = dr.grad(x)
         if self.to_world is not None:
             g = g * self.to_world[0]
