@@ -132,7 +132,9 @@ class State:
     values : dict of str to mi.Float
         Point-space value of each parameter, gradients enabled.
     grads : dict of str to mi.Float
-        After the energy terms' reverse pass: their gradient per parameter.
+        After the energy terms' reverse pass: their gradient for each parameter
+        they differentiate (their ``wrt``). A parameter that no term gave a
+        gradient in an iteration is not stepped in it.
     seeds : Seeds
         The loop's seeds; ``seeds.integer(it, ...)`` for this iteration's samplers.
     """
@@ -375,67 +377,19 @@ def optimise(params: dict, terms: list, *, iterations: int, seeds: Seeds, refres
     FitError
         A non-finite energy after ``failure.recoveries`` recoveries.
     """
-    import time
-
-    import drjit as dr
-
     if keep not in ("last", "best"):
         fail("optimise", "keep to be 'last' or 'best'", repr(keep))
-    refresh = refresh or Refresh()
+    run = _Run(params, terms, refresh or Refresh(), failure or Failure())
     convergence = convergence or Convergence()
-    failure = failure or Failure()
-    energy_terms = [t for t in terms if t.kind == "energy"]
-    render_terms = [t for t in terms if t.kind == "render"]
-    history = {t.name: [] for t in terms} | {"total": [], "lr": [], "time": []}
-    t_start = time.perf_counter()
-    seconds = {t.name: 0.0 for t in render_terms}
-    cached = {t.name: {} for t in render_terms}      # each render term's reusable gradients
-    first = next(iter(params.values()))
-    best = (math.inf, {k: dr.detach(p.value) for k, p in params.items()})
-    factor, recoveries, converged, it = 1.0, 0, False, -1
+    factor, converged = 1.0, False
     for it in range(iterations):
         state = State(it, params, seeds)
-        if refresh.due(state):
-            for t in terms:
-                t.refresh(state)
-            refresh.done(state)
-        contributions = [t.energy(state) for t in energy_terms]
-        E = contributions[0]
-        for c in contributions[1:]:
-            E = E + c
-        dr.eval(*contributions, E)
-        values = {t.name: float(c[0]) for t, c in zip(energy_terms, contributions)} | {"total": float(E[0])}
-        if not all(np.isfinite(v) for v in values.values()) or not _finite(params):
-            recoveries += 1
-            if recoveries > failure.recoveries:
-                raise failure.error(it, values)
+        values = run.evaluate(state)
+        if values is None:                        # not finite: recovered at the best iterate, a quarter of the step
             factor *= 0.25
-            _restore(params, best[1])
             continue
-        dr.backward(E)
-        state.grads = {k: dr.grad(v) for k, v in state.values.items()}
-        grads = dict(state.grads)
-        losses = {}
-        for t in render_terms:
-            if it % t.every == 0:
-                t0 = time.perf_counter()
-                fresh, losses[t.name] = t.gradient(state)
-                seconds[t.name] += time.perf_counter() - t0
-                if not np.isfinite(losses[t.name]):
-                    raise failure.error(it, {t.name: losses[t.name]})
-                cached[t.name] = {k: g for k, g in fresh.items() if k in t.reuse}
-                _add(grads, fresh)
-            else:
-                _add(grads, cached[t.name])
-        for t in render_terms:
-            history[t.name].append(losses.get(t.name, math.nan))
-        for name, v in values.items():
-            history[name].append(v)
-        history["lr"].append(first.schedule(it) * factor)
-        history["time"].append(time.perf_counter() - t_start)
-        watched = values["total"] if convergence.monitor is None else history[convergence.monitor][-1]
-        if watched < best[0]:
-            best = (watched, {k: dr.detach(p.value) for k, p in params.items()})
+        grads = run.gradients(state)
+        watched = run.record(state, values, factor, convergence.monitor)
         if progress is not None:
             progress(it + 1, iterations, watched)
         action = convergence.update(it, watched)
@@ -444,17 +398,102 @@ def optimise(params: dict, terms: list, *, iterations: int, seeds: Seeds, refres
             break
         if action == "halve":
             factor *= 0.5
-            _restore(params, best[1])
+            _restore(params, run.best[1])
             continue
         for name, p in params.items():
             if name in grads:
                 p.step(grads[name], factor, it)
-    chosen = best[1] if keep == "best" else {k: p.value for k, p in params.items()}
-    out = {}
-    for k, p in params.items():
-        v = chosen[k] if p.parameterisation is None else p.parameterisation.solve(chosen[k])
-        out[k] = np.array(v, dtype=np.float64).reshape(-1, 3)
-    return LoopResult(out, history, len(history["total"]), converged, seconds)
+    return run.result(keep, converged)
+
+
+class _Run:
+    """The loop's bookkeeping: terms by kind, cached render gradients, history, the best iterate."""
+
+    def __init__(self, params, terms, refresh, failure):
+        import time
+
+        self.params, self.terms, self.refresh, self.failure = params, terms, refresh, failure
+        self.energy_terms = [t for t in terms if t.kind == "energy"]
+        self.render_terms = [t for t in terms if t.kind == "render"]
+        self.wrt = sorted({k for t in self.energy_terms for k in t.wrt} & set(params))
+        self.history = {t.name: [] for t in terms} | {"total": [], "lr": [], "time": []}
+        self.seconds = {t.name: 0.0 for t in self.render_terms}
+        self.cached = {t.name: {} for t in self.render_terms}       # each render term's reusable gradients
+        self.best = (math.inf, self._snapshot())
+        self.recoveries, self.t0, self.losses = 0, time.perf_counter(), {}
+
+    def _snapshot(self) -> dict:
+        import drjit as dr
+
+        return {k: dr.detach(p.value) for k, p in self.params.items()}
+
+    def evaluate(self, state):
+        """Refresh when due, sum the energy terms and differentiate them; their values (None: not finite)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        if self.refresh.due(state):
+            for t in self.terms:
+                t.refresh(state)
+            self.refresh.done(state)
+        contributions = [t.energy(state) for t in self.energy_terms]
+        E = contributions[0] if contributions else mi.Float(0.0)
+        for c in contributions[1:]:
+            E = E + c
+        dr.eval(*contributions, E)
+        values = {t.name: float(c[0]) for t, c in zip(self.energy_terms, contributions)} | {"total": float(E[0])}
+        if not all(np.isfinite(v) for v in values.values()) or not _finite(self.params):
+            self.recoveries += 1
+            if self.recoveries > self.failure.recoveries:
+                raise self.failure.error(state.it, values)
+            _restore(self.params, self.best[1])
+            return None
+        if contributions:
+            dr.backward(E)
+        state.grads = {k: dr.grad(state.values[k]) for k in self.wrt}
+        return values
+
+    def gradients(self, state) -> dict:
+        """The energy gradients plus the render terms' (fresh where due, reused otherwise)."""
+        import time
+
+        grads, self.losses = dict(state.grads), {}
+        for t in self.render_terms:
+            if state.it % t.every == 0:
+                t0 = time.perf_counter()
+                fresh, self.losses[t.name] = t.gradient(state)
+                self.seconds[t.name] += time.perf_counter() - t0
+                if not np.isfinite(self.losses[t.name]):
+                    raise self.failure.error(state.it, {t.name: self.losses[t.name]})
+                self.cached[t.name] = {k: g for k, g in fresh.items() if k in t.reuse}
+                _add(grads, fresh)
+            else:
+                _add(grads, self.cached[t.name])
+        return grads
+
+    def record(self, state, values, factor: float, monitor) -> float:
+        """Append the iteration to the history, track the best iterate; the monitored value."""
+        import time
+
+        for t in self.render_terms:
+            self.history[t.name].append(self.losses.get(t.name, math.nan))
+        for name, v in values.items():
+            self.history[name].append(v)
+        first = next(iter(self.params.values()))
+        self.history["lr"].append(first.schedule(state.it) * factor)
+        self.history["time"].append(time.perf_counter() - self.t0)
+        watched = values["total"] if monitor is None else self.history[monitor][-1]
+        if watched < self.best[0]:
+            self.best = (watched, self._snapshot())
+        return watched
+
+    def result(self, keep: str, converged: bool) -> LoopResult:
+        chosen = self.best[1] if keep == "best" else {k: p.value for k, p in self.params.items()}
+        out = {}
+        for k, p in self.params.items():
+            v = chosen[k] if p.parameterisation is None else p.parameterisation.solve(chosen[k])
+            out[k] = np.array(v, dtype=np.float64).reshape(-1, 3)
+        return LoopResult(out, self.history, len(self.history["total"]), converged, self.seconds)
 
 
 def _finite(params) -> bool:

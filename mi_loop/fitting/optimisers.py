@@ -150,7 +150,13 @@ class Adam:
 
 
 class Schedule:
-    """Step size per iteration; the base class is a constant ``lr``."""
+    """Step size per iteration (the base class: ``lr`` at every iteration).
+
+    Parameters
+    ----------
+    lr : float
+        Step size, finite and > 0.
+    """
 
     def __init__(self, lr: float):
         if not (isinstance(lr, (int, float, np.floating)) and math.isfinite(lr) and lr > 0):
@@ -161,7 +167,8 @@ class Schedule:
         return self.lr
 
 
-Constant = Schedule
+class Constant(Schedule):
+    """The same step size ``lr`` at every iteration."""
 
 
 @dataclass

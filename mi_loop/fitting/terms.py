@@ -5,8 +5,9 @@ A term has a ``name`` (its key in the loop's history), a ``kind`` and a
 
 - ``kind = 'energy'``: ``energy(state)`` returns its weighted value as a
   differentiable Dr.Jit scalar of the iterate (``state.x``, the control points
-  shared by all terms of one iteration); the loop sums the energy terms and
-  differentiates them in one reverse pass.
+  shared by all terms of one iteration; ``wrt`` names the parameters it
+  depends on); the loop sums the energy terms and differentiates them in one
+  reverse pass.
 - ``kind = 'render'``: ``gradient(state)`` runs its own reverse passes (one per
   rendered view) every ``every`` iterations and returns ``({name: gradient},
   loss)``; the gradients of the parameters in ``reuse`` are added again on the
@@ -29,6 +30,8 @@ class Term:
 
     kind = "energy"
     name = "term"
+    #: The parameters whose gradients the energy has (the control points).
+    wrt = ("x",)
 
     def refresh(self, state) -> None:
         """Rebuild what depends on the iterate (called by the loop's refresh rule)."""
