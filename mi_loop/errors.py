@@ -8,6 +8,8 @@ one line ``mi-loop: error: ...``.
 """
 from __future__ import annotations
 
+from typing import NoReturn
+
 __all__ = ["FitError", "expected", "fail"]
 
 
@@ -43,7 +45,7 @@ def expected(func: str, what: str, got) -> str:
     return f"{head}: expected {what}, got {got if isinstance(got, str) else repr(got)}"
 
 
-def fail(func: str, what: str, got, exc: type = ValueError):
+def fail(func: str, what: str, got, exc: type[Exception] = ValueError) -> NoReturn:
     """Raise ``exc(expected(func, what, got))``.
 
     Parameters

@@ -251,7 +251,9 @@ def self_intersections(V, F) -> np.ndarray:
     -----
     MeshLab's ``compute_selection_by_self_intersections_per_face``
     (pymeshlab): a uniform-grid broad phase and exact triangle-triangle
-    tests; 0.6 s for 128,000 triangles on a loaded 2-core machine.
+    tests, so the cost grows with the number of triangles and of close pairs
+    rather than with all pairs (timings in BENCHMARKS.md, section "No folds
+    in static fits").
 
     Examples
     --------

@@ -1,11 +1,14 @@
 """The package as users meet it: what an import loads, Mitsuba's usual order, public names and their docs."""
 from __future__ import annotations
 
+import ast
 import dataclasses
 import importlib
 import inspect
 import pkgutil
+import re
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -96,6 +99,127 @@ def test_every_module_declares_its_public_names(name):
     assert hasattr(module, "__all__"), f"{name} has no __all__"
     missing = [n for n in module.__all__ if not hasattr(module, n)]
     assert not missing, f"{name}.__all__ lists names it does not define: {missing}"
+
+
+# -- the import graph: what the README's "Layout" promises ---------------------------------------------------------
+
+PACKAGE_ROOT = Path(mi_loop.__file__).resolve().parent
+#: Entry points above every layer: the facade (public names loaded lazily from every layer; any module may read
+#: ``__version__`` from it, as Python initialises it first) and ``__main__`` (runs the CLI).
+ENTRY_POINTS = ("mi_loop", "mi_loop.__main__")
+
+
+def module_sources():
+    """``{module name: source path}`` of every module of the package (a package's ``__init__`` under its own name)."""
+    found = {}
+    for path in sorted(PACKAGE_ROOT.rglob("*.py")):
+        parts = path.relative_to(PACKAGE_ROOT.parent).with_suffix("").parts
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def imported_modules(name, source, known, is_package=False):
+    """Modules among ``known`` that module ``name`` imports anywhere in ``source`` (module level, inside
+    functions, under ``if TYPE_CHECKING``), read with ``ast``; names taken from the facade resolve to the
+    module that defines them."""
+    package = name if is_package else name.rpartition(".")[0]
+    lazy = {**mi_loop._LAZY, **mi_loop._MODULES}
+    targets = []
+    for node in ast.walk(ast.parse(source, name)):
+        if isinstance(node, ast.Import):
+            targets += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                head = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join(head + ([node.module] if node.module else []))
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                targets.append(full if full in known else lazy.get(alias.name, base) if base == "mi_loop" else base)
+    found = set()
+    for target in targets:
+        while target and target not in known:      # ``import mi_loop.a.b`` of a name inside a module
+            target = target.rpartition(".")[0]
+        if target and target != name:
+            found.add(target)
+    return found
+
+
+def import_graph():
+    """``{module: modules of the package it imports}``, entry points left out."""
+    sources = module_sources()
+    return {name: imported_modules(name, path.read_text(), sources, path.name == "__init__.py") - set(ENTRY_POINTS)
+            for name, path in sources.items() if name not in ENTRY_POINTS}
+
+
+def import_cycle(graph):
+    """One cycle ``[a, b, ..., a]`` of ``graph``, or None (depth-first search)."""
+    state = {}                                       # 1 on the current path, 2 done
+    path = []
+
+    def visit(node):
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def readme_layers():
+    """Sub-packages in the order of the README's "Layout" table (each may import only from those before it)."""
+    layout = re.search(r"^## Layout\n(.*?)(?=^## |\Z)", (REPO / "README.md").read_text(), re.S | re.M)
+    assert layout, "README has no '## Layout' section"
+    return re.findall(r"^\| `mi_loop\.(\w+)` \|", layout.group(1), re.M)
+
+
+def test_the_import_graph_finds_cycles_and_imports_inside_functions():
+    """The helpers the two tests below rely on, on a made-up graph and a made-up module."""
+    assert import_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert import_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+    known = {"mi_loop", "mi_loop.io", "mi_loop.io.fake", "mi_loop.io.glb", "mi_loop.render.plugin",
+             "mi_loop.subdiv.limit"}
+    source = ("import numpy as np\n"
+              "def f():\n"
+              "    from mi_loop import plugin, __version__\n"
+              "    from . import glb\n"
+              "    import mi_loop.subdiv.limit\n")
+    assert imported_modules("mi_loop.io.fake", source, known) == {
+        "mi_loop", "mi_loop.io.glb", "mi_loop.render.plugin", "mi_loop.subdiv.limit"}
+    assert imported_modules("mi_loop.io", "from .glb import write_glb\n", known, is_package=True) == {
+        "mi_loop.io.glb"}
+
+
+def test_no_module_imports_a_module_that_imports_it_back():
+    """No import cycle among the package's modules, imports inside functions included (they hide cycles that
+    Python resolves only by the order in which the modules happen to load)."""
+    cycle = import_cycle(import_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_sub_packages_import_only_from_the_layers_above_them_in_the_readme():
+    """README, "Layout": sub-packages by layer, "each imports only from the layers above it in this table";
+    the top-level modules (``errors``, ``metrics``, ...) are shared by the layers and kept acyclic above."""
+    layers = readme_layers()
+    packages = sorted(p.name for p in PACKAGE_ROOT.iterdir() if (p / "__init__.py").is_file())
+    assert sorted(layers) == packages, f"README's Layout table lists {layers}, the package has {packages}"
+    rank = {f"mi_loop.{name}": i for i, name in enumerate(layers)}
+
+    def layer(module):
+        return rank.get(".".join(module.split(".")[:2]))
+
+    upward = [f"{a} -> {b}" for a, targets in sorted(import_graph().items()) for b in sorted(targets)
+              if layer(a) is not None and layer(b) is not None and layer(b) > layer(a)]
+    assert not upward, f"imports against the layer order {' -> '.join(layers)}: {upward}"
 
 
 def public_callables():

@@ -23,8 +23,10 @@ one of the optimal rotations.
 :func:`best_rotations` is the one-off NumPy function; :class:`RotationSolver`
 runs the same arithmetic as one float64 Dr.Jit LLVM kernel, traced once and
 replayed (``dr.freeze``), with Newton's loop running per entry until that
-entry converges. It is the one ARAP uses every iteration: about 0.6 ms against
-3-6 ms for the NumPy passes at 4667 vertices (BENCHMARKS.md).
+entry converges. It is the one ARAP uses every iteration: one pass over the
+``n`` entries instead of a NumPy temporary per arithmetic step, and Newton's
+steps only where an entry has not converged yet (timings in BENCHMARKS.md,
+section "ARAP rotations as one compiled kernel").
 
 References
 ----------

@@ -30,6 +30,7 @@ import glob
 import json
 import math
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -77,7 +78,7 @@ class _Frame:
             return f"frames[{self.i}].{key}"
         return f"{key} (top level, for frames[{self.i}])"
 
-    def fail(self, key: str, what: str, got):
+    def fail(self, key: str, what: str, got) -> NoReturn:
         fail("read_capture", f"{what} for {self.label(key)} in '{self.path}'", got)
 
     def get(self, key: str):

@@ -83,7 +83,6 @@ class Topology:
             self.vertex_sharpness = np.zeros(self.n)
         if self.hole is None:
             self.hole = np.zeros(len(self.F), dtype=bool)
-        self._he_sorted = None      # directed-edge keys for half_edge(), built on first use
         self._walk = None           # half-edge tables for the walks, built on first use
 
     @classmethod
@@ -165,98 +164,6 @@ class Topology:
             self._walk = HalfEdgeTables.of(self)
         return self._walk
 
-    # -- look-ups ---------------------------------------------------------
-    def half_edge(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Flat corner index ``3 f + c`` of the directed edges ``v -> w`` (``F[f, c] = v``).
-
-        Parameters
-        ----------
-        v, w : (k,) int numpy arrays
-            Start and end vertices; negative entries give -1.
-
-        Returns
-        -------
-        (k,) int64 numpy array
-            Corner index, or -1 where no face has the directed edge.
-        """
-        if self._he_sorted is None:
-            he_keys = self.F.ravel() * self.n + self.F[:, [1, 2, 0]].ravel()
-            order = np.argsort(he_keys)
-            self._he_sorted, self._he_index = he_keys[order], order  # flat index f * 3 + c
-        v = np.asarray(v, dtype=np.int64)
-        w = np.asarray(w, dtype=np.int64)
-        valid = (v >= 0) & (w >= 0)
-        key = np.where(valid, v * self.n + w, -1)
-        pos = np.searchsorted(self._he_sorted, key)
-        pos = np.minimum(pos, len(self._he_sorted) - 1)
-        found = valid & (self._he_sorted[pos] == key)
-        return np.where(found, self._he_index[pos], -1)
-
-    def edge_id(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Undirected edge ids of the edges ``v - w``.
-
-        Parameters
-        ----------
-        v, w : (k,) int numpy arrays
-            End vertices of existing edges (not checked).
-
-        Returns
-        -------
-        (k,) int64 numpy array
-            Rows of :attr:`E`.
-        """
-        c = self.half_edge(v, w)
-        c = np.where(c < 0, self.half_edge(w, v), c)
-        return self.face_edge.ravel()[c]
-
-    def edge_sharp(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Whether the edges ``v - w`` are sharp (boundary, or crease with sharpness > 0).
-
-        Parameters
-        ----------
-        v, w : (k,) int numpy arrays
-            End vertices of existing edges.
-
-        Returns
-        -------
-        (k,) bool numpy array
-        """
-        return self.sharpness[self.edge_id(v, w)] > 0
-
-    def next_ccw(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Neighbour of ``v`` following ``w`` counter-clockwise (through face ``v, w, x``).
-
-        Parameters
-        ----------
-        v, w : (k,) int numpy arrays
-            Centre vertices and one neighbour of each.
-
-        Returns
-        -------
-        (k,) int64 numpy array
-            ``x``, or -1 where there is no such face (boundary).
-        """
-        c = self.half_edge(v, w)
-        f, k = np.divmod(np.maximum(c, 0), 3)
-        return np.where(c >= 0, self.F[f, (k + 2) % 3], -1)
-
-    def next_cw(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Neighbour of ``v`` following ``w`` clockwise (through face ``w, v, y``).
-
-        Parameters
-        ----------
-        v, w : (k,) int numpy arrays
-            Centre vertices and one neighbour of each.
-
-        Returns
-        -------
-        (k,) int64 numpy array
-            ``y``, or -1 where there is no such face (boundary).
-        """
-        c = self.half_edge(w, v)
-        f, k = np.divmod(np.maximum(c, 0), 3)
-        return np.where(c >= 0, self.F[f, (k + 2) % 3], -1)
-
     # -- per-vertex quantities -----------------------------------------------
     def valence(self) -> np.ndarray:
         """Return the number of incident edges per vertex.
@@ -266,15 +173,6 @@ class Topology:
         (n,) int64 numpy array
         """
         return np.bincount(self.E.ravel(), minlength=self.n)
-
-    def face_count(self) -> np.ndarray:
-        """Return the number of incident faces per vertex.
-
-        Returns
-        -------
-        (n,) int64 numpy array
-        """
-        return np.bincount(self.F.ravel(), minlength=self.n)
 
     def sharp_count(self) -> np.ndarray:
         """Return the number of incident sharp edges (boundary edges included) per vertex.

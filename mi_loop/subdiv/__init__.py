@@ -5,7 +5,10 @@
 - :mod:`~mi_loop.subdiv.boxspline`, :mod:`~mi_loop.subdiv.patches`, :mod:`~mi_loop.subdiv.irregular`,
   :mod:`~mi_loop.subdiv.limit`: exact evaluation at any ``(face, u, v)``, :func:`limit_matrix`;
 - :mod:`~mi_loop.subdiv.masks`: the limit at the control vertices (masks) and dense limit meshes;
-- :mod:`~mi_loop.subdiv.tessellation`: uniform ``(face, u, v)`` samples and their triangles.
+- :mod:`~mi_loop.subdiv.tessellation`: uniform ``(face, u, v)`` samples and their triangles, one corner
+  sample per control vertex.
+
+Within the sub-package imports point one way: ``masks`` uses ``limit``, never the reverse.
 """
 
 __all__: list[str] = []

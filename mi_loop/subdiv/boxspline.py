@@ -71,8 +71,8 @@ _COEFFICIENTS = {None: _C, "u": _DU, "v": _DV}
 #: Points per block of monomials in :func:`box_rows` (its temporaries stay in cache).
 BLOCK = 4096
 #: Rows per matrix product: small enough for BLAS (OpenBLAS below 2^18
-#: multiply-adds) to run it on the calling thread, which is faster for these
-#: thin products than handing them to a thread pool, most of all on a busy machine.
+#: multiply-adds) to run it on the calling thread, so these thin products
+#: never wait for a thread pool to start or for its threads to be scheduled.
 PRODUCT_ROWS = 1024
 
 

@@ -16,18 +16,20 @@ precision at any depth. No eigenvectors are needed: valence 3 (defective
 ``A``), creases, corners and boundaries are all handled the same way. ``A`` and
 ``E_k`` are read off the subdivision matrix of the next level at one
 representative face per local configuration; only the faces around the
-representatives are subdivided for that (:func:`build_locals`).
+representatives are subdivided for that (:func:`build_locals`). Samples in
+such faces are grouped by configuration, child and depth, and their rows
+written, by :class:`IrregularSamples`.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from mi_loop.mesh.halfedge import Topology
-from mi_loop.subdiv.boxspline import box_basis
+from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_basis, box_rows
 from mi_loop.subdiv.patches import irregular_points, phantom_matrices, stam_points
 from mi_loop.subdiv.subdivision import subdivide_topology
 
-__all__ = ["MAX_DEPTH", "LocalMatrices", "build_local", "build_locals"]
+__all__ = ["MAX_DEPTH", "IrregularSamples", "LocalMatrices", "build_local", "build_locals"]
 
 #: Depth below which a point is taken as the vertex itself (2^-60 ~ 1e-18).
 MAX_DEPTH = 60
@@ -253,3 +255,129 @@ def _rows(S, idx, col):
     out = np.zeros((len(idx), int(col.max()) + 1))
     out[np.repeat(np.arange(len(idx)), counts), c] = S.data[entry]
     return out
+
+
+def _corner_child(s, t):
+    """Depth ``m``, child (0 at ``r_i``, 1 at ``r_j``, 2 middle) and its parameters, near the irregular vertex.
+
+    ``m`` is the depth with ``2^-(m+1) < s + t <= 2^-m``, read off the binary
+    exponent; ``at_vertex`` marks ``s + t <= 2^-MAX_DEPTH``. Returns
+    ``at_vertex, m, child, cu, cv, factor`` with ``factor`` the derivative
+    factor of the child's parameters.
+    """
+    st = s + t
+    at_vertex = st <= 2.0 ** -MAX_DEPTH
+    mant, e = np.frexp(np.maximum(st, 2.0 ** -MAX_DEPTH))
+    m = np.clip((mant == 0.5) - e, 0, MAX_DEPTH)
+    cu, cv = np.ldexp(s, m + 1), np.ldexp(t, m + 1)     # 2 s 2^m, 2 t 2^m: exact
+    c0 = cu >= 1.0
+    c1 = cv >= 1.0
+    c1 &= ~c0
+    c2 = ~(c0 | c1)
+    cu -= c0
+    cv -= c1
+    np.subtract(1.0, cu, out=cu, where=c2)
+    np.subtract(1.0, cv, out=cv, where=c2)
+    child = c1 + 2 * c2
+    factor = np.ldexp(np.where(c2, -2.0, 2.0), m)
+    return at_vertex, m, child, np.clip(cu, 0.0, 1.0, out=cu), np.clip(cv, 0.0, 1.0, out=cv), factor
+
+
+#: d/du and d/dv in terms of d/ds and d/dt, by the irregular corner: (s, t) are
+#: the barycentrics (rot + 1, rot + 2) of (1 - u - v, u, v).
+_DS = {"u": (1.0, 0.0, -1.0), "v": (0.0, 1.0, -1.0)}
+_DT = {"u": (0.0, -1.0, 1.0), "v": (1.0, -1.0, 0.0)}
+_N_LOCAL = 3 * (MAX_DEPTH + 1) + 1      # (child, depth) pairs and the vertex itself
+
+
+class IrregularSamples:
+    """Samples in faces with an irregular corner, sorted by (configuration, corner, child, depth).
+
+    Parameters
+    ----------
+    h : Hierarchy
+        The :class:`~mi_loop.subdiv.hierarchy.Hierarchy` that holds the level-``L`` faces.
+    rows : (k,) int numpy array
+        Index of every sample among all samples (its row in the padded weights).
+    faces : (k,) int64 numpy array
+        Level-``L`` face of every sample; each has an irregular corner.
+    u, v : (k,) float64 numpy arrays
+        Parameters in those faces.
+    scale : (k,) float64 numpy array
+        Derivative factor of every sample's level-``L`` parameters.
+
+    Attributes
+    ----------
+    rows : (k,) int numpy array
+        The sample indices, sorted by (configuration, corner, child, depth).
+    cu, cv : (k,) float64 numpy arrays
+        Parameters in the regular child patch, in that order.
+    scale : (k,) float64 numpy array
+        The samples' own derivative factors, in that order.
+    groups : list of tuples
+        The runs ``(signature, rot, child or -1 at the vertex, depth, factor,
+        start, stop)`` that share one matrix and one derivative factor.
+    """
+
+    def __init__(self, h, rows, faces, u, v, scale):
+        rot = h.irr_corner[faces]
+        w = 1 - u - v
+        r1, r2 = rot == 1, rot == 2                 # (s, t) = (u, v), (v, w), (w, u)
+        s = np.where(r1, v, np.where(r2, w, u))
+        t = np.where(r1, w, np.where(r2, u, v))
+        at_vertex, m, child, cu, cv, factor = _corner_child(s, t)
+        key = (h.irr_sig[faces] * 3 + rot) * _N_LOCAL + np.where(at_vertex, _N_LOCAL - 1,
+                                                                   child * (MAX_DEPTH + 1) + m)
+        used = np.zeros(len(h.locals) * 3 * _N_LOCAL, dtype=bool)
+        used[key] = True
+        rank = (np.cumsum(used) - 1).astype(np.int16 if used.sum() < 2 ** 15 else np.int64)[key]
+        order = np.argsort(rank, kind="stable")
+        self.rows, self.cu, self.cv, self.scale = rows[order], cu[order], cv[order], scale[order]
+        factor = factor[order]
+        counts = np.bincount(rank)
+        stops = np.cumsum(counts)
+        self.groups = []
+        for k, start, stop in zip(np.flatnonzero(used), stops - counts, stops):
+            qr, local = divmod(int(k), _N_LOCAL)
+            c, d = divmod(local, MAX_DEPTH + 1) if local < _N_LOCAL - 1 else (-1, 0)
+            self.groups.append((qr // 3, qr % 3, c, d, float(factor[start]), int(start), int(stop)))
+
+    def apply(self, h, W: dict):
+        """Overwrite the rows of these samples in the padded weights ``W`` (box-spline rows at ``(cu, cv)``)."""
+        names = list(W)
+        width = W[names[0]].shape[1]
+        derivs = [d for d in names if d is not None]
+        need = ([None] if None in W else []) + (["u", "v"] if derivs else [])
+        buf = np.empty((PRODUCT_ROWS, width))
+        for q, rot, c, depth, f, a, e in self.groups:
+            loc = h.locals[q]
+            K = len(loc.pi)
+            if c < 0:                      # at the vertex: the limit mask and the tangent-plane rows
+                rows = self.rows[a:e]
+                for d in names:
+                    W[d][rows, K:] = 0.0
+                    W[d][rows, :K] = loc.pi if d is None else \
+                        self.scale[a:e, None] * (_DS[d][rot] * loc.T[0] + _DT[d][rot] * loc.T[1])
+                continue
+            G = loc.G[c, depth]
+            for a0 in range(a, e, PRODUCT_ROWS):
+                e0 = min(e, a0 + PRODUCT_ROWS)
+                rows = self.rows[a0:e0]
+                B = {d: np.take(W[d], rows, axis=0)[:, :12] if d in W else
+                     box_rows(self.cu[a0:e0], self.cv[a0:e0], (d,), 12, self.scale[a0:e0])[d] for d in need}
+                out = buf[:e0 - a0]
+                out[:, K:] = 0.0
+                if None in W:
+                    np.add(B[None] @ G, loc.pi, out=out[:, :K])
+                    W[None][rows] = out
+                if derivs:
+                    X, Y = B["u"] @ G, B["v"] @ G     # d/ds and d/dt, up to the factor
+                    for d in derivs:
+                        ds, dt = f * _DS[d][rot], f * _DT[d][rot]
+                        if dt == 0:
+                            np.multiply(X, ds, out=out[:, :K])
+                        elif ds == 0:
+                            np.multiply(Y, dt, out=out[:, :K])
+                        else:
+                            np.add(ds * X, dt * Y, out=out[:, :K])
+                        W[d][rows] = out

@@ -5,7 +5,10 @@ until every face has at most one irregular corner), regular faces are quartic
 box-spline patches (with phantom points along creases and boundaries); faces
 with an irregular corner use :mod:`mi_loop.subdiv.irregular`. Rows are kept
 factored as ``W_L @ S_L``: ``W_L`` (padded, on the level-``L`` vertices) times
-the composed subdivision matrix ``S_L``.
+the composed subdivision matrix ``S_L``. At the control vertices the limit
+points have closed-form masks (:func:`position_masks`), which
+:func:`limit_matrix` takes when every sample is a face corner and
+:mod:`mi_loop.subdiv.masks` builds on.
 """
 from __future__ import annotations
 
@@ -13,12 +16,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.errors import fail
+from mi_loop.mesh.halfedge import Topology
 from mi_loop.mesh.topology import sharp_topology
 from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_rows
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
-from mi_loop.subdiv.irregular import MAX_DEPTH
+from mi_loop.subdiv.irregular import IrregularSamples
+from mi_loop.subdiv.subdivision import loop_beta
+from mi_loop.subdiv.tessellation import vertex_samples
 
-__all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr"]
+__all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr", "position_masks", "vertex_rows"]
 
 
 def _map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
@@ -50,113 +56,6 @@ def _map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
         np.clip(u, 0.0, 1.0, out=u)
         np.clip(v, 0.0, 1.0, out=v)
     return f, u, v, sign * 2.0 ** len(h.S)
-
-
-def _corner_child(s, t):
-    """Depth ``m``, child (0 at ``r_i``, 1 at ``r_j``, 2 middle) and its parameters, near the irregular vertex.
-
-    ``m`` is the depth with ``2^-(m+1) < s + t <= 2^-m``, read off the binary
-    exponent; ``at_vertex`` marks ``s + t <= 2^-MAX_DEPTH``. Returns
-    ``at_vertex, m, child, cu, cv, factor`` with ``factor`` the derivative
-    factor of the child's parameters.
-    """
-    st = s + t
-    at_vertex = st <= 2.0 ** -MAX_DEPTH
-    mant, e = np.frexp(np.maximum(st, 2.0 ** -MAX_DEPTH))
-    m = np.clip((mant == 0.5) - e, 0, MAX_DEPTH)
-    cu, cv = np.ldexp(s, m + 1), np.ldexp(t, m + 1)     # 2 s 2^m, 2 t 2^m: exact
-    c0 = cu >= 1.0
-    c1 = cv >= 1.0
-    c1 &= ~c0
-    c2 = ~(c0 | c1)
-    cu -= c0
-    cv -= c1
-    np.subtract(1.0, cu, out=cu, where=c2)
-    np.subtract(1.0, cv, out=cv, where=c2)
-    child = c1 + 2 * c2
-    factor = np.ldexp(np.where(c2, -2.0, 2.0), m)
-    return at_vertex, m, child, np.clip(cu, 0.0, 1.0, out=cu), np.clip(cv, 0.0, 1.0, out=cv), factor
-
-
-#: d/du and d/dv in terms of d/ds and d/dt, by the irregular corner: (s, t) are
-#: the barycentrics (rot + 1, rot + 2) of (1 - u - v, u, v).
-_DS = {"u": (1.0, 0.0, -1.0), "v": (0.0, 1.0, -1.0)}
-_DT = {"u": (0.0, -1.0, 1.0), "v": (1.0, -1.0, 0.0)}
-_N_LOCAL = 3 * (MAX_DEPTH + 1) + 1      # (child, depth) pairs and the vertex itself
-
-
-class _IrregularSamples:
-    """Samples in faces with an irregular corner, sorted by (configuration, corner, child, depth).
-
-    ``rows`` are their sample indices in that order and ``groups`` the runs
-    ``(signature, rot, child or -1 at the vertex, depth, factor, start, stop)``
-    that share one matrix and one derivative factor; ``cu, cv`` are the
-    parameters in the regular child patch and ``scale`` the sample's own
-    derivative factor (from :func:`_map_to_level`).
-    """
-
-    def __init__(self, h: Hierarchy, rows, faces, u, v, scale):
-        rot = h.irr_corner[faces]
-        w = 1 - u - v
-        r1, r2 = rot == 1, rot == 2                 # (s, t) = (u, v), (v, w), (w, u)
-        s = np.where(r1, v, np.where(r2, w, u))
-        t = np.where(r1, w, np.where(r2, u, v))
-        at_vertex, m, child, cu, cv, factor = _corner_child(s, t)
-        key = (h.irr_sig[faces] * 3 + rot) * _N_LOCAL + np.where(at_vertex, _N_LOCAL - 1,
-                                                                   child * (MAX_DEPTH + 1) + m)
-        used = np.zeros(len(h.locals) * 3 * _N_LOCAL, dtype=bool)
-        used[key] = True
-        rank = (np.cumsum(used) - 1).astype(np.int16 if used.sum() < 2 ** 15 else np.int64)[key]
-        order = np.argsort(rank, kind="stable")
-        self.rows, self.cu, self.cv, self.scale = rows[order], cu[order], cv[order], scale[order]
-        factor = factor[order]
-        counts = np.bincount(rank)
-        stops = np.cumsum(counts)
-        self.groups = []
-        for k, start, stop in zip(np.flatnonzero(used), stops - counts, stops):
-            qr, local = divmod(int(k), _N_LOCAL)
-            c, d = divmod(local, MAX_DEPTH + 1) if local < _N_LOCAL - 1 else (-1, 0)
-            self.groups.append((qr // 3, qr % 3, c, d, float(factor[start]), int(start), int(stop)))
-
-    def apply(self, h: Hierarchy, W: dict):
-        """Overwrite the rows of these samples in the padded weights ``W`` (box-spline rows at ``(cu, cv)``)."""
-        names = list(W)
-        width = W[names[0]].shape[1]
-        derivs = [d for d in names if d is not None]
-        need = ([None] if None in W else []) + (["u", "v"] if derivs else [])
-        buf = np.empty((PRODUCT_ROWS, width))
-        for q, rot, c, depth, f, a, e in self.groups:
-            loc = h.locals[q]
-            K = len(loc.pi)
-            if c < 0:                      # at the vertex: the limit mask and the tangent-plane rows
-                rows = self.rows[a:e]
-                for d in names:
-                    W[d][rows, K:] = 0.0
-                    W[d][rows, :K] = loc.pi if d is None else \
-                        self.scale[a:e, None] * (_DS[d][rot] * loc.T[0] + _DT[d][rot] * loc.T[1])
-                continue
-            G = loc.G[c, depth]
-            for a0 in range(a, e, PRODUCT_ROWS):
-                e0 = min(e, a0 + PRODUCT_ROWS)
-                rows = self.rows[a0:e0]
-                B = {d: np.take(W[d], rows, axis=0)[:, :12] if d in W else
-                     box_rows(self.cu[a0:e0], self.cv[a0:e0], (d,), 12, self.scale[a0:e0])[d] for d in need}
-                out = buf[:e0 - a0]
-                out[:, K:] = 0.0
-                if None in W:
-                    np.add(B[None] @ G, loc.pi, out=out[:, :K])
-                    W[None][rows] = out
-                if derivs:
-                    X, Y = B["u"] @ G, B["v"] @ G     # d/ds and d/dt, up to the factor
-                    for d in derivs:
-                        ds, dt = f * _DS[d][rot], f * _DT[d][rot]
-                        if dt == 0:
-                            np.multiply(X, ds, out=out[:, :K])
-                        elif ds == 0:
-                            np.multiply(Y, dt, out=out[:, :K])
-                        else:
-                            np.add(ds * X, dt * Y, out=out[:, :K])
-                        W[d][rows] = out
 
 
 def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
@@ -199,7 +98,7 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
     ii = np.flatnonzero(h.irr_corner[faces] >= 0)
     width = max(12, int(h.irr_K[faces[ii]].max())) if len(ii) else 12
     idx = np.take(np.ascontiguousarray(h.face_P[:, :width]), faces, axis=0)
-    irr = _IrregularSamples(h, ii, faces[ii], u[ii], v[ii], scale[ii]) if len(ii) else None
+    irr = IrregularSamples(h, ii, faces[ii], u[ii], v[ii], scale[ii]) if len(ii) else None
     if irr is not None:
         u[irr.rows], v[irr.rows] = irr.cu, irr.cv
     W = box_rows(u, v, derivatives, width, scale)
@@ -313,6 +212,107 @@ def padded_to_csr(idx, W, n_cols):
     return M
 
 
+def vertex_rows(F, n_vertices, model, derivatives, func):
+    """Return the limit rows at the control vertices from the hierarchy, one matrix per derivative.
+
+    Parameters
+    ----------
+    F : (m, 3) int numpy array
+        Control faces; every vertex must be used by a face.
+    n_vertices : int
+        Number of control vertices ``n``.
+    model : dict
+        The crease keywords of :func:`~mi_loop.subdiv.hierarchy.build_hierarchy`
+        (``creases``, ``corners``, ``boundary``, ``crease_method``).
+    derivatives : tuple of None, 'u', 'v'
+        The limit point (None) or a parametric derivative, in the face that
+        :func:`~mi_loop.subdiv.tessellation.vertex_samples` picks for each vertex.
+    func : str
+        Name of the calling public function, for error messages.
+
+    Returns
+    -------
+    list of scipy.sparse.csr_matrix, shape ``(n, n)``, float64
+        One per entry of ``derivatives``.
+    """
+    h = build_hierarchy(F, n_vertices, func=func, **model)
+    face, uv = vertex_samples(h.levels[0].F, n_vertices)
+    S = h.composed()
+    return [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in level_rows(h, face, uv, derivatives)]
+
+
+def position_masks(topo: Topology, func, model):
+    """Return the limit-position masks at the control vertices: closed forms, the hierarchy only where none applies.
+
+    Parameters
+    ----------
+    topo : Topology
+        The control mesh's :class:`~mi_loop.mesh.halfedge.Topology`, with its crease model.
+    func : str
+        Name of the calling public function, for error messages.
+    model : dict
+        The crease keywords that built ``topo``, for :func:`vertex_rows`.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape ``(n, n)``, float64
+        Row ``i`` gives the limit point of control vertex ``i``; sorted indices.
+
+    Notes
+    -----
+    The limit point of a control vertex is the dominant left eigenvector of
+    its local subdivision matrix applied to its one-ring. In closed form:
+
+    - smooth (no sharp incident edge), valence ``k``: ``chi = 1 / (3 / (8 beta(k)) + k)``
+      per neighbour, ``1 - k chi`` at the centre;
+    - crease (exactly two infinitely sharp incident edges, boundary edges
+      included, no vertex sharpness): ``1/6, 2/3, 1/6`` along the crease (the
+      cubic B-spline's limit);
+    - corner (infinite vertex sharpness, e.g. a boundary vertex of one face
+      under the edge-and-corner rule, or three or more infinitely sharp
+      edges): the vertex itself.
+
+    Darts (one sharp edge) and vertices with a semi-sharp edge or semi-sharp
+    vertex sharpness have no such form: their rows come from the hierarchy
+    (:func:`vertex_rows`), built only if one exists.
+    """
+    n, F = topo.n, topo.F
+    E, sharp = topo.E, topo.sharpness
+    ends = np.concatenate([E[:, 0], E[:, 1]])
+    other = np.concatenate([E[:, 1], E[:, 0]])
+    s = np.concatenate([sharp, sharp])
+    valence = np.bincount(ends, minlength=n)
+    hard = np.bincount(ends, weights=np.isinf(s), minlength=n)
+    vs = topo.vertex_sharpness
+    semi = (np.bincount(ends, weights=np.isfinite(s) & (s > 0), minlength=n) > 0) | (np.isfinite(vs) & (vs > 0))
+    corner = ~semi & (np.isinf(vs) | (hard >= 3))
+    crease = ~semi & ~corner & (hard == 2)
+    smooth = ~semi & ~corner & (hard == 0)
+    chi = 1.0 / (3.0 / (8.0 * loop_beta(np.maximum(valence, 3))) + valence)
+    rows, cols, vals = [], [], []
+    on = smooth[ends]                                   # smooth: chi per neighbour, 1 - k chi at the centre
+    rows += [ends[on], np.flatnonzero(smooth)]
+    cols += [other[on], np.flatnonzero(smooth)]
+    vals += [chi[ends[on]], (1.0 - valence * chi)[smooth]]
+    on = crease[ends] & np.isinf(s)                     # crease: 1/6 per crease neighbour, 2/3 at the centre
+    rows += [ends[on], np.flatnonzero(crease)]
+    cols += [other[on], np.flatnonzero(crease)]
+    vals += [np.full(on.sum(), 1.0 / 6.0), np.full(crease.sum(), 2.0 / 3.0)]
+    rows.append(np.flatnonzero(corner))                 # corner: pinned
+    cols.append(np.flatnonzero(corner))
+    vals.append(np.ones(corner.sum()))
+    M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    rest = ~(smooth | crease | corner)                  # darts, semi-sharp
+    if rest.any():
+        exact = vertex_rows(F, n, model, (None,), func)[0]
+        keep = sp.diags(rest.astype(np.float64))
+        M = sp.diags((~rest).astype(np.float64)) @ M + keep @ exact
+    M = M.tocsr()
+    M.sort_indices()
+    return M
+
+
+
 def _all_corners(uv) -> bool:
     """Whether ``uv`` is a non-empty (k, 2) array of face corners ``(0, 0)``, ``(1, 0)``, ``(0, 1)`` only."""
     uv = np.asarray(uv)
@@ -380,12 +380,10 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None, *, 
         fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     if derivative is None and _all_corners(uv):   # the vertex masks, no hierarchy
-        from mi_loop.subdiv.masks import _position_masks
-
         topo = sharp_topology(F, n_vertices, "limit_matrix", **model)
         face_ids, uv = check_samples(face_ids, uv, len(topo.F), "limit_matrix", topo.hole)
         corner = np.where(uv[:, 0] == 1, 1, np.where(uv[:, 1] == 1, 2, 0))
-        return _position_masks(topo, "limit_matrix", model)[topo.F[face_ids, corner]]
+        return position_masks(topo, "limit_matrix", model)[topo.F[face_ids, corner]]
     h = build_hierarchy(F, n_vertices, func="limit_matrix", **model)
     face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix", h.levels[0].hole)
     (idx, W), = level_rows(h, face_ids, uv, (derivative,))

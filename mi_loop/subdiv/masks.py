@@ -1,51 +1,26 @@
-"""Limit positions and normals at the control vertices, and dense limit meshes (NumPy/SciPy)."""
+"""Limit positions and normals at the control vertices, and dense limit meshes (NumPy/SciPy).
+
+The masks themselves (:func:`~mi_loop.subdiv.limit.position_masks`,
+:func:`~mi_loop.subdiv.limit.vertex_rows`) live in :mod:`mi_loop.subdiv.limit`,
+whose :func:`~mi_loop.subdiv.limit.limit_matrix` takes them for samples at the
+corners; :func:`vertex_samples` is re-exported from
+:mod:`mi_loop.subdiv.tessellation`.
+"""
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from mi_loop.errors import fail
 from mi_loop.mesh.topology import check_vertices, sharp_topology, validate_faces
 from mi_loop.subdiv.hierarchy import build_hierarchy
-from mi_loop.subdiv.limit import level_rows, limit_matrix, padded_to_csr
-from mi_loop.subdiv.tessellation import tessellate
+from mi_loop.subdiv.limit import level_rows, limit_matrix, padded_to_csr, position_masks, vertex_rows
+from mi_loop.subdiv.tessellation import tessellate, vertex_samples
 
 __all__ = ["limit_colors", "limit_masks", "limit_mesh", "limit_normals", "limit_positions", "tangent_masks",
            "vertex_samples"]
 
-_CORNER_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-
-
-def vertex_samples(F, n_vertices: int):
-    """Return one face-corner sample per control vertex, whose limit point is the vertex's.
-
-    Parameters
-    ----------
-    F : (m, 3) int numpy array
-        Validated faces; every vertex must be used by a face.
-    n_vertices : int
-        Number of vertices ``n``.
-
-    Returns
-    -------
-    face_ids : (n,) int64 numpy array
-        A face of every vertex.
-    uv : (n, 2) float64 numpy array
-        The vertex's corner in that face: ``(0, 0)``, ``(1, 0)`` or ``(0, 1)``.
-
-    Examples
-    --------
-    >>> face_ids, uv = vertex_samples(np.array([[0, 1, 2], [0, 2, 3]]), 4)
-    >>> face_ids.tolist(), uv.tolist()
-    ([1, 0, 0, 1], [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])
-    """
-    F = np.asarray(F)
-    face = np.zeros(int(n_vertices), dtype=np.int64)
-    corner = np.zeros(int(n_vertices), dtype=np.int64)
-    for c in range(3):
-        face[F[:, c]] = np.arange(len(F))
-        corner[F[:, c]] = c
-    return face, _CORNER_UV[corner].copy()
+#: The rows of the hierarchy at the control vertices, under the name the tests compare the closed forms against.
+_masks = vertex_rows
 
 
 def limit_mesh(V, F, level: int = 3, creases=None, *, corners=None, boundary="edge_and_corner",
@@ -165,7 +140,7 @@ def limit_masks(F, n_vertices, creases=None, *, corners=None, boundary="edge_and
     """
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     _check_used(F, n_vertices, "limit_masks")
-    return _position_masks(sharp_topology(F, n_vertices, "limit_masks", **model), "limit_masks", model)
+    return position_masks(sharp_topology(F, n_vertices, "limit_masks", **model), "limit_masks", model)
 
 
 def tangent_masks(F, n_vertices, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
@@ -205,80 +180,7 @@ def tangent_masks(F, n_vertices, creases=None, *, corners=None, boundary="edge_a
     """
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     _check_used(F, n_vertices, "tangent_masks")
-    return _masks(F, n_vertices, model, ("u", "v"), "tangent_masks")
-
-
-def loop_beta(k):
-    """Loop's vertex weight ``beta(k) = (5/8 - (3/8 + cos(2 pi / k) / 4)^2) / k`` for valence ``k``."""
-    k = np.asarray(k, dtype=np.float64)
-    return (0.625 - (0.375 + 0.25 * np.cos(2.0 * np.pi / k)) ** 2) / k
-
-
-def _position_masks(topo, func, model):
-    """Limit-position masks at the control vertices: closed forms, the hierarchy only where none applies.
-
-    The limit point of a control vertex is the dominant left eigenvector of
-    its local subdivision matrix applied to its one-ring. In closed form:
-
-    - smooth (no sharp incident edge), valence ``k``: ``chi = 1 / (3 / (8 beta(k)) + k)``
-      per neighbour, ``1 - k chi`` at the centre;
-    - crease (exactly two infinitely sharp incident edges, boundary edges
-      included, no vertex sharpness): ``1/6, 2/3, 1/6`` along the crease (the
-      cubic B-spline's limit);
-    - corner (infinite vertex sharpness, e.g. a boundary vertex of one face
-      under the edge-and-corner rule, or three or more infinitely sharp
-      edges): the vertex itself.
-
-    Darts (one sharp edge) and vertices with a semi-sharp edge or semi-sharp
-    vertex sharpness have no such form: their rows come from the hierarchy
-    (:func:`_masks`, with the crease keywords ``model``), built only if one
-    exists. ``topo``: the control mesh's :class:`Topology`.
-    """
-    n, F = topo.n, topo.F
-    E, sharp = topo.E, topo.sharpness
-    ends = np.concatenate([E[:, 0], E[:, 1]])
-    other = np.concatenate([E[:, 1], E[:, 0]])
-    s = np.concatenate([sharp, sharp])
-    valence = np.bincount(ends, minlength=n)
-    hard = np.bincount(ends, weights=np.isinf(s), minlength=n)
-    vs = topo.vertex_sharpness
-    semi = (np.bincount(ends, weights=np.isfinite(s) & (s > 0), minlength=n) > 0) | (np.isfinite(vs) & (vs > 0))
-    corner = ~semi & (np.isinf(vs) | (hard >= 3))
-    crease = ~semi & ~corner & (hard == 2)
-    smooth = ~semi & ~corner & (hard == 0)
-    chi = 1.0 / (3.0 / (8.0 * loop_beta(np.maximum(valence, 3))) + valence)
-    rows, cols, vals = [], [], []
-    on = smooth[ends]                                   # smooth: chi per neighbour, 1 - k chi at the centre
-    rows += [ends[on], np.flatnonzero(smooth)]
-    cols += [other[on], np.flatnonzero(smooth)]
-    vals += [chi[ends[on]], (1.0 - valence * chi)[smooth]]
-    on = crease[ends] & np.isinf(s)                     # crease: 1/6 per crease neighbour, 2/3 at the centre
-    rows += [ends[on], np.flatnonzero(crease)]
-    cols += [other[on], np.flatnonzero(crease)]
-    vals += [np.full(on.sum(), 1.0 / 6.0), np.full(crease.sum(), 2.0 / 3.0)]
-    rows.append(np.flatnonzero(corner))                 # corner: pinned
-    cols.append(np.flatnonzero(corner))
-    vals.append(np.ones(corner.sum()))
-    M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    rest = ~(smooth | crease | corner)                  # darts, semi-sharp
-    if rest.any():
-        exact = _masks(F, n, model, (None,), func)[0]
-        keep = sp.diags(rest.astype(np.float64))
-        M = sp.diags((~rest).astype(np.float64)) @ M + keep @ exact
-    M = M.tocsr()
-    M.sort_indices()
-    return M
-
-
-def _masks(F, n_vertices, model, derivatives, func):
-    """Mask matrices ``(n, n)`` at the control vertices, one per entry of ``derivatives``.
-
-    ``model``: the crease keywords of :func:`~mi_loop.subdiv.hierarchy.build_hierarchy`.
-    """
-    h = build_hierarchy(F, n_vertices, func=func, **model)
-    face, uv = vertex_samples(h.levels[0].F, n_vertices)
-    S = h.composed()
-    return [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in level_rows(h, face, uv, derivatives)]
+    return vertex_rows(F, n_vertices, model, ("u", "v"), "tangent_masks")
 
 
 def limit_positions(V, F, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
@@ -312,7 +214,7 @@ def limit_positions(V, F, creases=None, *, corners=None, boundary="edge_and_corn
     """
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     V, F = _checked(V, F, "limit_positions")
-    return _position_masks(sharp_topology(F, len(V), "limit_positions", **model), "limit_positions", model) @ V
+    return position_masks(sharp_topology(F, len(V), "limit_positions", **model), "limit_positions", model) @ V
 
 
 def limit_normals(V, F, creases=None, *, corners=None, boundary="edge_and_corner", crease_method="uniform"):
@@ -347,7 +249,7 @@ def limit_normals(V, F, creases=None, *, corners=None, boundary="edge_and_corner
     """
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     V, F = _checked(V, F, "limit_normals")
-    Mu, Mv = _masks(F, len(V), model, ("u", "v"), "limit_normals")
+    Mu, Mv = vertex_rows(F, len(V), model, ("u", "v"), "limit_normals")
     N = np.cross(Mu @ V, Mv @ V)
     return N / np.linalg.norm(N, axis=1, keepdims=True)
 

@@ -1,4 +1,4 @@
-"""Uniform, watertight tessellation of control faces in parameter space (NumPy)."""
+"""Uniform, watertight tessellation of control faces in parameter space, and corner samples (NumPy)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,41 @@ from mi_loop.errors import fail
 from mi_loop.mesh.halfedge import Topology
 from mi_loop.mesh.topology import validate_faces
 
-__all__ = ["tessellate"]
+__all__ = ["tessellate", "vertex_samples"]
+
+_CORNER_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+
+
+def vertex_samples(F, n_vertices: int):
+    """Return one face-corner sample per control vertex, whose limit point is the vertex's.
+
+    Parameters
+    ----------
+    F : (m, 3) int numpy array
+        Validated faces; every vertex must be used by a face.
+    n_vertices : int
+        Number of vertices ``n``.
+
+    Returns
+    -------
+    face_ids : (n,) int64 numpy array
+        A face of every vertex.
+    uv : (n, 2) float64 numpy array
+        The vertex's corner in that face: ``(0, 0)``, ``(1, 0)`` or ``(0, 1)``.
+
+    Examples
+    --------
+    >>> face_ids, uv = vertex_samples(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> face_ids.tolist(), uv.tolist()
+    ([1, 0, 0, 1], [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0]])
+    """
+    F = np.asarray(F)
+    face = np.zeros(int(n_vertices), dtype=np.int64)
+    corner = np.zeros(int(n_vertices), dtype=np.int64)
+    for c in range(3):
+        face[F[:, c]] = np.arange(len(F))
+        corner[F[:, c]] = c
+    return face, _CORNER_UV[corner].copy()
 
 
 def tessellate(F, level: int = 3, faces=None):
