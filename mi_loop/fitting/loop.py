@@ -45,8 +45,8 @@ class Seeds:
     ----------
     seed : int
         The user's seed (``--seed``), >= 0.
-    *key : int
-        Path in the tree (e.g. the frame index): :meth:`child` appends to it.
+    key : int, optional
+        Path in the tree (e.g. the frame index), any number of them: :meth:`child` appends to it.
 
     Examples
     --------
@@ -125,18 +125,23 @@ class Parameter:
 class State:
     """What the terms see of one iteration: the iterate with gradients, evaluations shared between terms.
 
-    Attributes
+    Parameters
     ----------
     it : int
         Iteration.
+    params : dict of str to Parameter
+        The loop's parameters; their point-space values become :attr:`values`.
+    seeds : Seeds
+        The loop's seeds.
+
+    Attributes
+    ----------
     values : dict of str to mi.Float
         Point-space value of each parameter, gradients enabled.
     grads : dict of str to mi.Float
         After the energy terms' reverse pass: their gradient for each parameter
         they differentiate (their ``wrt``). A parameter that no term gave a
         gradient in an iteration is not stepped in it.
-    seeds : Seeds
-        The loop's seeds; ``seeds.integer(it, ...)`` for this iteration's samplers.
     """
 
     def __init__(self, it: int, params: dict, seeds: Seeds):
@@ -199,9 +204,12 @@ class Refresh:
     every: int = 20
     move: float | None = None
     probe: object = None
-    _at: object = field(default=None, repr=False)
+
+    def __post_init__(self):
+        self._at = None       # the probe's samples at the last refresh (True when no movement is watched)
 
     def due(self, state: State) -> bool:
+        """Whether the terms refresh in this iteration."""
         import drjit as dr
 
         if state.it % self.every == 0 or self._at is None:
@@ -213,6 +221,7 @@ class Refresh:
         return bool(moved[0] > self.move)
 
     def done(self, state: State) -> None:
+        """Remember where the terms refreshed."""
         import drjit as dr
 
         if self.move is not None:

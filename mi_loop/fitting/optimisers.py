@@ -168,12 +168,27 @@ class Schedule:
 
 
 class Constant(Schedule):
-    """The same step size ``lr`` at every iteration."""
+    """The same step size ``lr`` at every iteration.
+
+    Parameters
+    ----------
+    lr : float
+        Step size, finite and > 0.
+    """
 
 
 @dataclass
 class Exponential(Schedule):
     """``lr * decay ** (it / (length - 1))``: from ``lr`` at the first iteration to ``lr * decay`` at the last.
+
+    Attributes
+    ----------
+    lr : float
+        Step size at the first iteration, finite and > 0.
+    decay : float
+        Ratio of the last step size to the first, in (0, 1].
+    length : int
+        Iterations the decay spans.
 
     Examples
     --------
