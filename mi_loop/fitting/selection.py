@@ -1,10 +1,9 @@
 """The ARAP weight of a fit to noisy data, chosen on points held out of the fit.
 
-How much to regularise depends on the noise and on the shape at once: on the
-demo torus (noise 0.30 of the point spacing, a shape 1000 control vertices
-resolve easily) the weight 1 fits the clean surface 2.6x closer than 0.001;
-on the bunny range scans with more noise still (0.45 of the spacing, a shape
-the same control mesh only just resolves) 0.001 is best and 1 is 1.8x worse.
+How much to regularise depends on the noise and on the shape at once: a
+shape the control mesh resolves easily wants a strong weight on noisy data,
+one it only just resolves a weak weight even with more noise (the demo torus
+and the noisy bunny range scans, BENCHMARKS.md "Noise-aware defaults").
 No rule on the noise level alone gets both, so the weight is measured: a
 tenth of the points is held out, the fit runs on the rest for each weight of
 :data:`ALPHAS` in increasing order, and the weight whose limit surface lies

@@ -28,6 +28,7 @@ curves, and the control edges along the curves as infinitely sharp creases.
 from __future__ import annotations
 
 import time
+from typing import NoReturn
 
 import numpy as np
 
@@ -45,7 +46,7 @@ MIN_FEATURE_LENGTH = 0.05
 FAIR_ANGLE = 2.0
 
 
-def _fail(message: str, func: str = "make_template"):
+def _fail(message: str, func: str = "make_template") -> NoReturn:
     raise ValueError(f"{func}(): {message}")
 
 
@@ -55,9 +56,9 @@ def poisson_depth(n_vertices: int) -> int:
     Rule: depth 6 up to 2000 vertices, 7 up to 8000, 8 above. A depth-``d``
     reconstruction of a compact shape has roughly ``3 * 4**d`` vertices
     (bunny scan: 11k at depth 6, 46k at 7, 177k at 8), so the decimation
-    ratio stays at 5 or more while the Poisson step stays fast (118k-point
-    bunny scan, one thread: ~1.1 s at depth 6, ~3 s at depth 7 on an idle
-    2-core machine; depth 8 ~70 s).
+    ratio stays at 5 or more while the Poisson step stays cheap: each depth
+    costs about four times the one below (BENCHMARKS.md, "Bunny scan", has
+    depth 8 next to the fits).
 
     Parameters
     ----------
@@ -96,8 +97,8 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     min_angle : float
         Smallest allowed triangle angle in degrees (0 to 20).
     threads : int
-        Poisson threads. One is the default: on these 2-core machines two
-        threads took 27 s instead of 1.1 s (bunny scan, depth 6), idle or not.
+        Poisson threads. One is the default: more threads made pymeshlab's
+        Poisson many times slower on small machines, not faster.
     point_weight, samples_per_node : float, optional
         Screened Poisson's screening weight and points per octree node
         (pymeshlab's defaults, 4 and 1.5). Noisy data wants a smoother
