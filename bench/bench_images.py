@@ -79,7 +79,7 @@ def run_peer(capture: Path, name: str, variant: str, budget: float, settings: di
     from mi_loop.io.emitters import DEFAULT_EMITTERS
     from mi_loop.metrics import two_sided
     from mi_loop.render.cameras import sensor_dict
-    from mi_loop.render.photo import background
+    from mi_loop.render.captures import background
 
     shot = read_capture(capture)
     cameras = [v.camera for v in shot.views]

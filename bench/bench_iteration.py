@@ -12,8 +12,8 @@ iterations after ``--warmup`` untimed ones (kernels compiled and cached):
     in the reverse pass; what mi_loop did before);
   - ``one thread``: the atomics version with ``dr.set_thread_count(1)``
     (determinism by serialising everything).
-- ``image``: one view of the multi-view image term (``direct_projective``,
-  96x96, 4 spp, level-1 limit surface of the same cage) forward and backward,
+- ``image``: one view of the image term on a 4-camera rig (:class:`~mi_loop.render.images.ImageRenderer`,
+  ``direct_projective``, 96x96, 4 spp, level-1 limit surface of the same cage) forward and backward,
   default and with the reverse render on one thread (``--deterministic``);
   and the same render with ``direct_projective``'s default ``sppi`` instead
   of ``sppi: 0`` (gradients of indirect visibility: shadows), the setting a
@@ -92,21 +92,25 @@ def image_step(V0, F, deterministic, sppi_default=False):
     import drjit as dr
     import mitsuba as mi
 
-    from mi_loop.render.multiview import Renderer, RigOptions
+    from mi_loop.render.cameras import rig_cameras
+    from mi_loop.render.captures import camera_scene, render_targets
+    from mi_loop.render.images import ImageRenderer
+    from mi_loop.render.scene import rig_emitters
 
-    rig = RigOptions(views=4, resolution=96, spp=4, target_spp=16, deterministic=deterministic)
-    renderer = Renderer(V0, F, (V0.min(0) - 0.1, V0.max(0) + 0.1), rig)
+    box = (V0.min(0) - 0.1, V0.max(0) + 0.1)
+    cameras, emitters, grey = rig_cameras(4, box, 96), rig_emitters(box), np.full(V0.shape, 0.6)
+    targets = render_targets(V0 * 1.02, F, cameras, emitters, albedo=grey, spp=16)
+    renderer = ImageRenderer(V0, F, targets, emitters, albedo=grey, level=1, spp=4, deterministic=deterministic)
     if sppi_default:      # the same scene with direct_projective's own sppi
-        shape = renderer.scene.shapes()[0]
-        renderer.scene = mi.load_dict(renderer._scene_dict(shape, {"type": "direct_projective"}))
+        renderer.scene = camera_scene(renderer.shape, cameras, emitters, integrator={"type": "direct_projective"},
+                                      spp=4)
         renderer.params = mi.traverse(renderer.scene)
-        renderer.params.keep([renderer.key])
-    targets = renderer.targets(V0 * 1.02, F)
+        renderer.params.keep(list(renderer.keys.values()))
     x = mi.Float(V0.ravel().astype(np.float32))
     dr.enable_grad(x)
 
     def step():
-        renderer.backward(x, [1], targets, seed=3)
+        renderer.backward(x, None, [1], seed=3)
         dr.eval(dr.grad(x))
     return step
 

@@ -168,7 +168,7 @@ def write_frames(out: Path, Vs, F, colors, *, depth_cams, rgb_cams, sigma: float
     from mi_loop.io import write_capture, write_ply
     from mi_loop.io.emitters import DEFAULT_EMITTERS
     from mi_loop.mesh.geometry import vertex_normals
-    from mi_loop.render.photo import render_views
+    from mi_loop.render.captures import render_views
 
     (out / "depth").mkdir(parents=True, exist_ok=True)
     stats = []

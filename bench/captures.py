@@ -52,7 +52,7 @@ def make_capture(name: str, variant: str, out: Path = OUT, *, views: int = VIEWS
     from mi_loop.io.emitters import DEFAULT_EMITTERS
     from mi_loop.mesh.geometry import vertex_normals
     from mi_loop.render.cameras import fibonacci_cameras
-    from mi_loop.render.photo import render_views
+    from mi_loop.render.captures import render_views
 
     V, F = normalised_target(name)
     cameras = fibonacci_cameras(views, [0, 0, 0], DISTANCE, fov_x_deg=FOV, width=res, height=res)

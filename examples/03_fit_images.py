@@ -31,7 +31,8 @@ from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.mesh.geometry import vertex_normals
 from mi_loop.metrics import two_sided
 from mi_loop.render.cameras import fibonacci_cameras
-from mi_loop.render.photo import PhotoRenderer, render_views
+from mi_loop.render.captures import render_views
+from mi_loop.render.images import ImageRenderer
 from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.subdiv.masks import limit_mesh
 from mi_loop.subdiv.tessellation import tessellate
@@ -75,9 +76,9 @@ def main() -> None:
 
     rows = [[views[k].mask[..., None] * views[k].rgb + (1 - views[k].mask[..., None]) for k in SHOW]]
     for V, F, c in ((result.V0, result.F0, result.albedo0), (result.V, result.F, result.albedo)):
-        r = PhotoRenderer(V, F, c, [views[k] for k in SHOW], LIGHT, level=2, spp=32)
+        r = ImageRenderer(V, F, [views[k] for k in SHOW], LIGHT, albedo=c, level=2, spp=32)
         x, a = mi.Float(V.ravel().astype(np.float32)), mi.Float(c.ravel().astype(np.float32))
-        rows.append([np.asarray(r.render(x, a, k, seed=k)) for k in range(len(SHOW))])
+        rows.append([np.asarray(r.render(x, a, k, seed=0)) for k in range(len(SHOW))])   # sampler seed k
     picture = np.concatenate([np.concatenate([io.linear_to_srgb(im) for im in row], axis=1) for row in rows])
     print(f"wrote {io.write_png(OUT / '03_fit_images.png', picture)} in {time.perf_counter() - start:.1f} s")
 

@@ -1,4 +1,4 @@
-"""NeRF / OpenGL pinhole cameras in Mitsuba: the sensor, the projection, Fibonacci rigs.
+"""NeRF / OpenGL pinhole cameras in Mitsuba: the sensor, the projection, cameras framing a box.
 
 A :class:`~mi_loop.io.capture.Camera` has OpenGL axes (it looks down -Z, +Y
 up, +X right) and pixel coordinates x right, y down from the top-left corner
@@ -16,6 +16,10 @@ of the image. Mitsuba's ``perspective`` sensor images the same world when
   as ``cx, cy``) as a centred camera traces ``s + offset``, so the optical
   axis falls on ``s = 0.5 - offset``.
 
+Cameras that frame a box (its bounding sphere filling the field of view, as
+:func:`look_at_distance` places them): :func:`orbit_camera` from an azimuth and
+an elevation, :func:`rig_cameras` on a Fibonacci sphere (:func:`fibonacci_cameras`).
+
 Only :func:`sensor_dict` imports Mitsuba (a variant must be set); the rest is NumPy.
 """
 from __future__ import annotations
@@ -27,7 +31,8 @@ import numpy as np
 from mi_loop.errors import expected, fail
 from mi_loop.io.capture import Camera
 
-__all__ = ["fibonacci_cameras", "look_at", "project", "sensor_dict"]
+__all__ = ["fibonacci_cameras", "look_at", "look_at_distance", "orbit_camera", "project", "rig_cameras",
+           "sensor_dict"]
 
 #: OpenGL camera axes -> Mitsuba camera axes (a half-turn about Y).
 _GL_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
@@ -235,3 +240,151 @@ def fibonacci_cameras(n: int, center, radius: float, *, fov_x_deg: float, width:
     f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
     return [Camera(look_at(c + radius * d, c), f, f, 0.5 * width, 0.5 * height, width, height)
             for d in directions]
+
+
+def look_at_distance(radius: float, fov: float, margin: float = 1.1) -> float:
+    """Return the camera distance at which a sphere of ``radius`` fills 1 / ``margin`` of the field of view.
+
+    Parameters
+    ----------
+    radius : float
+        Radius of the sphere to frame.
+    fov : float
+        Field of view in degrees.
+    margin : float, optional
+        1 makes the sphere's tangent cone the field of view.
+
+    Returns
+    -------
+    float
+        ``margin * radius / sin(fov / 2)``.
+
+    Examples
+    --------
+    >>> round(look_at_distance(1.0, 35.0), 3)
+    3.658
+    """
+    return float(margin * radius / np.sin(np.radians(fov) / 2))
+
+
+def _direction(azimuth: float, elevation: float) -> np.ndarray:
+    """Unit vector at ``azimuth`` (about +y, from +z) and ``elevation`` (degrees); y is up."""
+    a, e = np.radians(azimuth), np.radians(elevation)
+    return np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+
+
+def _number(value, func: str, what: str, test=lambda v: True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value) or not test(value):
+        fail(func, what, value)
+    return float(value)
+
+
+def _box_sphere(bbox, func: str) -> tuple[np.ndarray, float]:
+    """Centre ``(3,)`` and radius (half the diagonal) of ``bbox = (lo, hi)``, checked for ``func``."""
+    try:
+        lo, hi = bbox
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    except (TypeError, ValueError):
+        got = f"{type(bbox).__name__} of {len(bbox)} items" if hasattr(bbox, "__len__") else type(bbox).__name__
+        fail(func, "a bbox (lo, hi) of two (3,) corners", got)
+    if lo.shape != (3,) or hi.shape != (3,):
+        fail(func, "a bbox (lo, hi) of two (3,) corners", f"shapes {lo.shape} and {hi.shape}")
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (hi >= lo).all() and radius > 0):
+        fail(func, "a bbox of finite corners with lo <= hi and a diagonal > 0",
+             f"lo = {lo.tolist()}, hi = {hi.tolist()}")
+    return 0.5 * (lo + hi), radius
+
+
+def orbit_camera(bbox, azimuth: float = 35.0, elevation: float = 25.0, *, fov: float = 35.0,
+                 resolution: int = 256, margin: float = 1.1) -> Camera:
+    """Return a square camera that looks at the centre of a box from a direction, framing it.
+
+    Parameters
+    ----------
+    bbox : ((3,), (3,)) float array-like
+        Corners ``(lo, hi)`` of the box, ``lo <= hi``, non-zero diagonal.
+    azimuth, elevation : float, optional
+        Viewing direction in degrees: azimuth about the +y (up) axis measured
+        from +z, elevation above the xz plane. The camera sits on that side.
+    fov : float, optional
+        Horizontal (and vertical) field of view in degrees, in (0, 180).
+    resolution : int, optional
+        Width and height in pixels.
+    margin : float, optional
+        Distance factor (:func:`look_at_distance`); 1 makes the box's bounding
+        sphere touch the image border, > 0.
+
+    Returns
+    -------
+    Camera
+        At ``centre + look_at_distance(radius, fov, margin) * direction``, looking
+        at the box centre (the principal point, centred), image up towards +Y
+        (:func:`look_at`).
+
+    Raises
+    ------
+    ValueError
+        A malformed or empty box, a non-finite angle, a field of view out of
+        range, ``resolution < 1``, ``margin <= 0``.
+
+    Examples
+    --------
+    >>> cam = orbit_camera(([-1, -1, -1], [1, 1, 1]), 0.0, 0.0, fov=90.0, resolution=64, margin=1.0)
+    >>> cam.c2w[:3, 3].round(3).tolist(), round(cam.fx, 9), (cam.cx, cam.cy)
+    ([0.0, 0.0, 2.449], 32.0, (32.0, 32.0))
+    """
+    centre, radius = _box_sphere(bbox, "orbit_camera")
+    azimuth = _number(azimuth, "orbit_camera", "a finite azimuth in degrees")
+    elevation = _number(elevation, "orbit_camera", "a finite elevation in degrees")
+    fov = _number(fov, "orbit_camera", "fov in (0, 180) degrees", lambda v: 0 < v < 180)
+    margin = _number(margin, "orbit_camera", "a margin > 0", lambda v: v > 0)
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
+        fail("orbit_camera", "an integer resolution >= 1", resolution)
+    eye = centre + look_at_distance(radius, fov, margin) * _direction(azimuth, elevation)
+    f = 0.5 * resolution / math.tan(math.radians(fov) / 2)
+    return Camera(look_at(eye, centre), f, f, 0.5 * resolution, 0.5 * resolution, int(resolution), int(resolution))
+
+
+def rig_cameras(n_views: int, bbox, resolution: int, fov: float = 35.0) -> list:
+    """Return the cameras of a rig around a box: a Fibonacci sphere at the framing distance.
+
+    Parameters
+    ----------
+    n_views : int
+        Number of cameras, >= 1.
+    bbox : ((3,), (3,)) float array-like
+        Corners ``(lo, hi)`` of the box every camera frames, ``lo <= hi``, non-zero diagonal.
+    resolution : int
+        Width and height of the square images in pixels.
+    fov : float, optional
+        Field of view in degrees, in (0, 180).
+
+    Returns
+    -------
+    list of Camera
+        :func:`fibonacci_cameras` about the box centre at radius
+        ``look_at_distance(r, fov)`` (``r`` half the box diagonal): the box's
+        bounding sphere fills 1 / 1.1 of every image, first camera near +Y.
+
+    Raises
+    ------
+    ValueError
+        ``n_views < 1``, a malformed or empty box, ``resolution < 1``, a field
+        of view out of range.
+
+    Examples
+    --------
+    >>> cams = rig_cameras(3, ([0, 0, 0], [1, 1, 1]), 32)
+    >>> len(cams), cams[0].width, round(float(cams[0].c2w[1, 3]), 3)
+    (3, 32, 2.612)
+    """
+    if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or n_views < 1:
+        fail("rig_cameras", "an integer n_views >= 1", n_views)
+    centre, radius = _box_sphere(bbox, "rig_cameras")
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
+        fail("rig_cameras", "an integer resolution >= 1", resolution)
+    fov = _number(fov, "rig_cameras", "fov in (0, 180) degrees", lambda v: 0 < v < 180)
+    return fibonacci_cameras(int(n_views), centre, look_at_distance(radius, fov), fov_x_deg=fov,
+                             width=int(resolution), height=int(resolution))

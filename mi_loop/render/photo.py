@@ -10,111 +10,21 @@ render of the emitters alone, ``T = mask * photo + (1 - mask) * B``: inside the
 mask the shading is compared, across its border the silhouette. Gradients
 flow to the control points (through silhouettes and shading, with
 ``direct_projective`` or ``prb_projective``) and to the albedo.
+
+Superseded by :class:`mi_loop.render.images.ImageRenderer` (which also takes
+rendered targets); :data:`INTEGRATORS` lives there, :func:`background` and
+:func:`render_views` in :mod:`mi_loop.render.captures`, re-exported here.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from mi_loop.ad.threads import one_thread
-from mi_loop.render.plugin import albedo_bsdf, create, plain_mesh
+from mi_loop.render.captures import background, camera_scene, render_views
+from mi_loop.render.images import INTEGRATORS
+from mi_loop.render.plugin import albedo_bsdf, create
 
 __all__ = ["INTEGRATORS", "PhotoRenderer", "background", "render_views"]
-
-#: Integrators whose gradients include silhouettes (see :mod:`mi_loop.render.plugin`).
-INTEGRATORS = ("direct_projective", "prb_projective")
-
-
-def _scene(shape, cameras, emitters, integrator, spp, alpha: bool = False):
-    import mitsuba as mi
-
-    from mi_loop.render.cameras import sensor_dict
-
-    desc = {"type": "scene"}
-    if integrator is not None:
-        desc["integrator"] = {"type": integrator, "sppi": 0} if integrator in INTEGRATORS else {"type": integrator}
-    if shape is not None:
-        desc["shape"] = shape
-    for j, emitter in enumerate(emitters):
-        desc[f"emitter_{j}"] = emitter
-    for k, camera in enumerate(cameras):
-        sensor = sensor_dict(camera, spp=spp)
-        if alpha:
-            sensor["film"]["pixel_format"] = "rgba"
-        desc[f"sensor_{k:03d}"] = sensor
-    return mi.load_dict(desc)
-
-
-def background(cameras, emitters, *, spp: int = 16, seed: int = 0) -> list:
-    """Render what each camera sees of the emitters alone (the photos' stand-in background).
-
-    Parameters
-    ----------
-    cameras : list of mi_loop.io.capture.Camera
-        The cameras.
-    emitters : list of dict or mi.Emitter
-        The capture's lighting.
-    spp : int
-        Samples per pixel (an environment seen directly needs few).
-    seed : int
-        Sampler seed.
-
-    Returns
-    -------
-    list of (h, w, 3) float32 NumPy arrays
-        Linear RGB per camera.
-    """
-    import mitsuba as mi
-
-    scene = _scene(None, cameras, emitters, "direct", spp)
-    return [np.asarray(mi.render(scene, spp=spp, seed=seed + k, sensor=k), dtype=np.float32)[..., :3]
-            for k in range(len(cameras))]
-
-
-def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int = 64, seed: int = 0) -> list:
-    """Photograph a triangle mesh with calibrated cameras: synthetic captures for tests and benchmarks.
-
-    Parameters
-    ----------
-    V : (k, 3) float NumPy array
-        Vertex positions.
-    F : (t, 3) int NumPy array
-        Triangles.
-    cameras : list of mi_loop.io.capture.Camera
-        The cameras.
-    emitters : list of dict or mi.Emitter
-        The lighting.
-    colors : (k, 3) float NumPy array, optional
-        Per-vertex linear albedo (default: grey 0.5) of a diffuse BSDF.
-    normals : (k, 3) float NumPy array, optional
-        Vertex normals (smooth shading); flat without.
-    spp : int
-        Samples per pixel (``direct`` integrator).
-    seed : int
-        Seed of the first view's sampler (view ``k`` uses ``seed + k``).
-
-    Returns
-    -------
-    list of mi_loop.io.capture.View
-        Linear RGB clipped to [0, 1] (as an 8-bit camera saturates; Monte Carlo
-        noise can exceed a white albedo) and the render's alpha as the mask,
-        named ``view_000`` ...
-    """
-    import mitsuba as mi
-
-    from mi_loop.io.capture import View
-
-    if colors is None:
-        bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
-    else:
-        bsdf = albedo_bsdf()
-    mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(bsdf), colors=colors)
-    scene = _scene(mesh, cameras, emitters, "direct", spp, alpha=True)
-    views = []
-    for k, camera in enumerate(cameras):
-        image = np.asarray(mi.render(scene, spp=spp, seed=seed + k, sensor=k), dtype=np.float32)
-        views.append(View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
-                          name=f"view_{k:03d}"))
-    return views
 
 
 class PhotoRenderer:
@@ -156,7 +66,8 @@ class PhotoRenderer:
         self.views, self.spp, self.deterministic = list(views), int(spp), bool(deterministic)
         cameras = [v.camera for v in self.views]
         self.shape = create(V, F, level=level, albedo=albedo, bsdf=mi.load_dict(albedo_bsdf()))
-        self.scene = _scene(self.shape, cameras, emitters, integrator, spp)
+        self.scene = camera_scene(self.shape, cameras, emitters, integrator={"type": integrator, "sppi": 0},
+                                  spp=spp)
         self.params = mi.traverse(self.scene)
         self.keys = {name: next(k for k in self.params.keys() if k.endswith(name))
                      for name in ("control_points", "control_albedo")}

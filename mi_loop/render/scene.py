@@ -1,5 +1,9 @@
 """Small Mitsuba scenes around one shape: cameras framing its bounding box, lights, rendering.
 
+The cameras are :class:`mi_loop.io.Camera` objects (:func:`mi_loop.render.cameras.orbit_camera`,
+:func:`~mi_loop.render.cameras.rig_cameras`) turned into sensors by the one
+:func:`mi_loop.render.cameras.sensor_dict`; the lights are :func:`rig_emitters`.
+
 Nothing here reads or writes files (see :mod:`mi_loop.io`) and nothing sets a
 Mitsuba variant (see :func:`mi_loop.set_variant`), which must be done first.
 """
@@ -7,92 +11,90 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PLASTIC", "look_at_bbox", "render_limit_surface", "render_view",
-           "scene_dict", "sensor_dict", "to_srgb"]
+from mi_loop.errors import fail
+from mi_loop.render.cameras import _box_sphere, _direction, look_at_distance, orbit_camera, sensor_dict
+
+__all__ = ["PLASTIC", "RIG_MODES", "look_at_distance", "render_limit_surface", "render_view", "rig_emitters",
+           "scene_dict", "to_srgb"]
 
 #: Default material of rendered limit surfaces: a blue rough plastic.
 PLASTIC = {"type": "roughplastic", "alpha": 0.15,
            "diffuse_reflectance": {"type": "rgb", "value": [0.18, 0.38, 0.72]}}
+#: Image modes of a rig (:func:`rig_emitters`).
+RIG_MODES = ("shading", "silhouette")
+# Mitsuba's defaults for a perspective sensor given none: clip distances and sample count.
+_NEAR, _FAR, _DEFAULT_SPP = 1e-2, 1e4, 4
 
 
-def _direction(azimuth: float, elevation: float) -> np.ndarray:
-    """Unit vector at ``azimuth`` (about +y, from +z) and ``elevation`` (degrees); y is up."""
-    a, e = np.radians(azimuth), np.radians(elevation)
-    return np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
-
-
-def look_at_bbox(bbox_min, bbox_max, azimuth: float = 35.0, elevation: float = 25.0,
-                 fov: float = 35.0, margin: float = 1.1):
-    """Return a camera-to-world transform that frames a bounding box.
+def rig_emitters(bbox, mode: str = "shading", *, fov: float = 35.0) -> list:
+    """Return the lights of a rig around a box: a grey environment, and a key light for shading.
 
     Parameters
     ----------
-    bbox_min, bbox_max : (3,) float array-like
-        Corners of the box to frame.
-    azimuth, elevation : float, optional
-        Viewing direction in degrees: azimuth about the +y (up) axis measured
-        from +z, elevation above the xz plane.
+    bbox : ((3,), (3,)) float array-like
+        Corners ``(lo, hi)`` of the box the cameras frame (the light is placed from it).
+    mode : {'shading', 'silhouette'}, optional
+        ``'shading'``: the environment and the key light; ``'silhouette'``: the
+        environment alone (a black subject then shows as its silhouette, radiance
+        0, against the environment's 0.25).
     fov : float, optional
-        Horizontal field of view in degrees of the camera that will use it.
-    margin : float, optional
-        Distance factor; 1 makes the bounding sphere touch the image border.
+        Field of view of the rig's cameras in degrees (the light sits beyond them).
 
     Returns
     -------
-    mi.ScalarTransform4f
-        Look-at transform from the camera position towards the box centre.
+    list of dict
+        Scene-dictionary entries: a ``constant`` environment of radiance 0.25,
+        then (shading) a ``rectangle`` shape with an ``area`` emitter of radiance
+        6; pass them as the ``emitters`` of :class:`mi_loop.render.images.ImageRenderer`.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``mode``, a malformed or empty box.
+
+    Notes
+    -----
+    The key light sits high (azimuth 60, elevation 70 degrees) and beyond the
+    cameras: a panel between a camera and the subject would hide the subject
+    from views near its direction. Its size grows with its distance, so the
+    solid angle it subtends from the subject (hence the irradiance) stays that
+    of a 1.2 r panel at 3 r (``r`` half the box diagonal). Needs a Mitsuba
+    variant (its transform is a ``mi.ScalarTransform4f``).
     """
+    if mode not in RIG_MODES:
+        fail("rig_emitters", f"mode to be one of {RIG_MODES}", repr(mode))
+    centre, radius = _box_sphere(bbox, "rig_emitters")
+    environment = {"type": "constant", "radiance": {"type": "rgb", "value": 0.25}}
+    if mode == "silhouette":
+        return [environment]
     import mitsuba as mi
 
-    lo, hi = np.asarray(bbox_min, dtype=np.float64), np.asarray(bbox_max, dtype=np.float64)
-    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    distance = look_at_distance(radius, fov, margin)
-    origin = centre + distance * _direction(azimuth, elevation)
-    return mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=centre.tolist(), up=[0, 1, 0])
-
-
-def look_at_distance(radius: float, fov: float, margin: float = 1.1) -> float:
-    """Camera distance at which a sphere of ``radius`` fills ``margin`` times the field of view.
-
-    >>> round(look_at_distance(1.0, 35.0), 3)
-    3.658
-    """
-    return float(margin * radius / np.sin(np.radians(fov) / 2))
-
-
-def sensor_dict(bbox_min, bbox_max, *, azimuth: float = 35.0, elevation: float = 25.0,
-                resolution: int = 256, fov: float = 35.0, sample_border: bool = False) -> dict:
-    """Return a perspective sensor dictionary framing a bounding box.
-
-    Parameters
-    ----------
-    bbox_min, bbox_max : (3,) float array-like
-        Box to frame.
-    azimuth, elevation, fov : float, optional
-        See :func:`look_at_bbox`.
-    resolution : int, optional
-        Width and height of the square film in pixels.
-    sample_border : bool, optional
-        Film ``sample_border``; set it when differentiating shapes that may
-        move across the image border.
-
-    Returns
-    -------
-    dict
-        A ``perspective`` sensor with a ``hdrfilm`` (RGB) and a box filter.
-    """
-    return {
-        "type": "perspective",
-        "fov": fov,
-        "to_world": look_at_bbox(bbox_min, bbox_max, azimuth, elevation, fov),
-        "film": {"type": "hdrfilm", "width": int(resolution), "height": int(resolution),
-                 "pixel_format": "rgb", "rfilter": {"type": "box"}, "sample_border": sample_border},
+    reach = 1.25 * look_at_distance(radius, fov) / radius
+    light_at = centre + reach * radius * _direction(60.0, 70.0)
+    key_light = {
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f().look_at(origin=light_at.tolist(), target=centre.tolist(),
+                                                   up=[0, 1, 0]).scale([0.2 * reach * radius] * 3),
+        "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 6.0}},
     }
+    return [environment, key_light]
+
+
+def _orbit_sensor(bbox, azimuth: float, elevation: float, *, resolution: int, fov: float = 35.0,
+                  sample_border: bool = False) -> dict:
+    """The sensor of :func:`~mi_loop.render.cameras.orbit_camera`, with Mitsuba's default clip distances
+    and sample count (4, overridden by ``mi.render(spp=)``): the pictures of the sensors that
+    :func:`scene_dict` built before it used :class:`~mi_loop.io.Camera` objects. ``sample_border``
+    changes nothing with the box filter."""
+    sensor = sensor_dict(orbit_camera(bbox, azimuth, elevation, fov=fov, resolution=resolution),
+                         spp=_DEFAULT_SPP, near=_NEAR, far=_FAR)
+    sensor["film"]["sample_border"] = bool(sample_border)
+    return sensor
 
 
 def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: float = 35.0,
                integrator: dict | None = None, sample_border: bool = False, bbox=None) -> dict:
-    """Return a scene dictionary: the shape, one sensor per view, environment and area light.
+    """Return a scene dictionary: the shape, one sensor per view, the rig's environment and key light.
 
     Parameters
     ----------
@@ -100,8 +102,13 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
         The loaded shape (e.g. from :func:`mi_loop.render.plugin.create`).
     views : sequence of (azimuth, elevation) in degrees, optional
         One sensor per entry, in order (``sensor=i`` of :func:`render_view`).
-    resolution, fov, sample_border :
-        See :func:`sensor_dict`.
+    resolution : int, optional
+        Width and height of the square films in pixels.
+    fov : float, optional
+        Field of view in degrees (:func:`mi_loop.render.cameras.orbit_camera`).
+    sample_border : bool, optional
+        Film ``sample_border``; set it when differentiating shapes that may
+        move across the image border.
     integrator : dict, optional
         Integrator dictionary (default: ``path`` with ``max_depth`` 4). Use
         ``{'type': 'direct_projective'}`` to differentiate silhouettes.
@@ -112,36 +119,24 @@ def scene_dict(shape, *, views=((35.0, 25.0),), resolution: int = 256, fov: floa
     Returns
     -------
     dict
-        Pass it to ``mi.load_dict``.
+        Pass it to ``mi.load_dict``; the lights are the entries ``environment``
+        and ``key_light`` (:func:`rig_emitters` in ``'shading'`` mode), the
+        sensors ``sensor_000``, ``sensor_001``, ...
     """
     if bbox is None:
         bbox = (shape.bbox().min, shape.bbox().max)
-    lo, hi = (np.array(corner, dtype=np.float64).reshape(3) for corner in bbox)
-    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    import mitsuba as mi
-
-    # The key light sits high (60, 70 degrees) and beyond the cameras: a panel
-    # between a camera and the subject would hide the subject from views near
-    # its direction. Its size grows with its distance, so the solid angle it
-    # subtends from the subject (hence the irradiance) stays that of a
-    # 1.2 r panel at 3 r.
-    reach = 1.25 * look_at_distance(radius, fov) / radius
-    light_at = centre + reach * radius * _direction(60.0, 70.0)
+    bbox = tuple(np.array(corner, dtype=np.float64).reshape(3) for corner in bbox)
+    environment, key_light = rig_emitters(bbox, "shading", fov=fov)
     scene = {
         "type": "scene",
         "integrator": integrator if integrator is not None else {"type": "path", "max_depth": 4},
         "shape": shape,
-        "environment": {"type": "constant", "radiance": {"type": "rgb", "value": 0.25}},
-        "key_light": {
-            "type": "rectangle",
-            "to_world": mi.ScalarTransform4f().look_at(origin=light_at.tolist(), target=centre.tolist(),
-                                                       up=[0, 1, 0]).scale([0.2 * reach * radius] * 3),
-            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 6.0}},
-        },
+        "environment": environment,
+        "key_light": key_light,
     }
     for i, (azimuth, elevation) in enumerate(views):
-        scene[f"sensor_{i:03d}"] = sensor_dict(lo, hi, azimuth=azimuth, elevation=elevation,
-                                               resolution=resolution, fov=fov, sample_border=sample_border)
+        scene[f"sensor_{i:03d}"] = _orbit_sensor(bbox, azimuth, elevation, resolution=resolution, fov=fov,
+                                                 sample_border=sample_border)
     return scene
 
 

@@ -1,9 +1,12 @@
-"""NeRF cameras in Mitsuba (mi_loop.render.cameras): renders against project(), the sensor, Fibonacci rigs.
+"""NeRF cameras in Mitsuba (mi_loop.render.cameras): renders against project(), the sensor, cameras framing a box.
 
 The oracle of the conventions is Mitsuba itself: tiny emissive spheres at
 known points, rendered through :func:`sensor_dict`, must light up where
 :func:`project` puts them (intensity-weighted blob centroids, to 0.1 px),
 for cameras read from ``transforms.json`` files in both intrinsics forms.
+Cameras framing a box (orbits, rigs) reproduce the look-at sensors that
+scenes used before :func:`sensor_dict` was the only one, and a sphere filling
+the box's bounding sphere covers the disc the framing distance predicts.
 """
 from __future__ import annotations
 
@@ -15,9 +18,17 @@ import pytest
 from PIL import Image
 
 from mi_loop.io.capture import Camera, read_capture
-from mi_loop.render.cameras import fibonacci_cameras, look_at, project, sensor_dict
+from mi_loop.render.cameras import (
+    fibonacci_cameras,
+    look_at,
+    look_at_distance,
+    orbit_camera,
+    project,
+    rig_cameras,
+    sensor_dict,
+)
 
-from helpers import exactly, run_python
+from helpers import exactly, run_python, sphere_mesh
 
 #: A tilted pose (rolled by an up vector off +Y) looking at a point off the origin.
 POSE = look_at([1.0, 0.7, 3.0], [0.1, -0.2, 0.0], up=[0.3, 1.0, 0.0])
@@ -212,3 +223,130 @@ def test_fibonacci_cameras_refuse_bad_input(kwargs, message):
     n, center, radius = args.pop("n"), args.pop("center"), args.pop("radius")
     with pytest.raises(ValueError, match=exactly(message)):
         fibonacci_cameras(n, center, radius, **args)
+
+
+# -- cameras framing a box ---------------------------------------------------------
+
+#: An off-centre box (centre (0.1, 0.35, -0.15), half diagonal 0.5 sqrt(1.13)).
+BOX = (np.array([-0.3, 0.1, -0.5]), np.array([0.5, 0.6, 0.2]))
+
+
+def corners(bbox) -> np.ndarray:
+    """The 8 corners ``(8, 3)`` of a box."""
+    lo, hi = bbox
+    return np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+
+@pytest.mark.parametrize("azimuth, elevation, fov", [(35.0, 25.0, 35.0), (-120.0, -60.0, 50.0), (200.0, 85.0, 20.0),
+                                                     (0.0, 0.0, 35.0)])
+def test_orbit_camera_sensor_is_the_old_look_at_sensor(azimuth, elevation, fov):
+    """Before cameras.sensor_dict was the only one, scene.sensor_dict built its to_world as Mitsuba's
+    look_at from ``centre + look_at_distance(r, fov) * (cos e sin a, sin e, cos e cos a)`` to the box
+    centre, +Y up, with ``fov`` about x and a centred film: the orbit camera's sensor is the same."""
+    import mitsuba as mi
+
+    lo, hi = BOX
+    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    a, e = np.radians(azimuth), np.radians(elevation)
+    direction = np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    origin = centre + look_at_distance(radius, fov) * direction
+    old = mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=centre.tolist(), up=[0, 1, 0])
+    sensor = sensor_dict(orbit_camera(BOX, azimuth, elevation, fov=fov, resolution=40))
+    np.testing.assert_allclose(np.array(sensor["to_world"].matrix), np.array(old.matrix), atol=1e-6)
+    assert sensor["fov"] == pytest.approx(fov) and sensor["fov_axis"] == "x"
+    assert sensor["principal_point_offset_x"] == sensor["principal_point_offset_y"] == 0.0
+    assert (sensor["film"]["width"], sensor["film"]["height"]) == (40, 40)
+
+
+def test_orbit_camera_by_hand():
+    """Azimuth 90, elevation 0: on +X of the centre at the framing distance, looking down -X, +Y up."""
+    camera = orbit_camera(([-1, -1, -1], [1, 1, 1]), 90.0, 0.0, fov=60.0, resolution=32, margin=1.0)
+    d = math.sqrt(3) / math.sin(math.radians(30))                  # the bounding sphere touches the border
+    np.testing.assert_allclose(camera.c2w, [[0, 0, 1, d], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], atol=1e-12)
+    assert camera.fx == camera.fy == pytest.approx(16 / math.tan(math.radians(30)))
+    assert (camera.cx, camera.cy, camera.width, camera.height) == (16.0, 16.0, 32, 32)
+
+
+def check_frames(camera, bbox):
+    """The box centre projects to the principal point and every corner into the image."""
+    lo, hi = bbox
+    np.testing.assert_allclose(project(camera, [0.5 * (lo + hi)]), [[camera.cx, camera.cy]], atol=1e-9)
+    uv = project(camera, corners(bbox))
+    assert (uv > 0).all() and (uv[:, 0] < camera.width).all() and (uv[:, 1] < camera.height).all(), uv
+
+
+@pytest.mark.parametrize("azimuth, elevation", [(35.0, 25.0), (-120.0, -60.0), (0.0, 90.0), (10.0, -90.0)])
+def test_orbit_camera_looks_at_the_box_centre_and_frames_the_box(azimuth, elevation):
+    """Poles included (look_at picks the image's up there)."""
+    check_frames(orbit_camera(BOX, azimuth, elevation, fov=35.0, resolution=48), BOX)
+
+
+def test_rig_cameras_are_a_fibonacci_sphere_at_the_framing_distance():
+    lo, hi = BOX
+    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    cameras = rig_cameras(20, BOX, 48, fov=40.0)
+    assert cameras == fibonacci_cameras(20, centre, look_at_distance(radius, 40.0), fov_x_deg=40.0, width=48,
+                                        height=48)
+    for camera in cameras:
+        check_frames(camera, BOX)
+    D = np.array([c.c2w[:3, 3] - centre for c in cameras])
+    np.testing.assert_allclose(np.linalg.norm(D, axis=1), look_at_distance(radius, 40.0))
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    probes = np.random.default_rng(0).normal(size=(20_000, 3))
+    probes /= np.linalg.norm(probes, axis=1, keepdims=True)
+    worst = np.degrees(np.arccos(np.clip((probes @ D.T).max(1), -1, 1))).max()
+    assert worst < 40, worst                                        # every direction is seen (spacing ~30)
+    gap = np.degrees(np.arccos(np.clip(D @ D.T - 2 * np.eye(20), -1, 1))).min()
+    assert gap > 20, gap                                            # no two cameras coincide
+
+
+def test_a_sphere_filling_the_box_sphere_covers_the_predicted_disc():
+    """The box's bounding sphere, seen from the rig, is a centred disc of radius f tan(asin(1 / 1.1 sin(fov / 2))).
+
+    Rendered by the cameras' sensors (mask = alpha, 32x32, 64 spp): the mask
+    covers the principal point's four pixels fully, its area is that of the
+    disc (pi 14.4^2 px at fov 35, to 2 %) and its centroid is the principal point.
+    """
+    from mi_loop.io.emitters import DEFAULT_EMITTERS
+    from mi_loop.render.captures import render_views
+
+    lo, hi = BOX
+    radius = 0.5 * np.linalg.norm(hi - lo)
+    V, F = sphere_mesh(radius, 5)
+    V = V / np.linalg.norm(V, axis=1, keepdims=True) * radius + 0.5 * (lo + hi)
+    cameras = rig_cameras(3, BOX, 32)
+    f = cameras[0].fx
+    rho = f * math.tan(math.asin(math.sin(math.radians(17.5)) / 1.1))
+    for view in render_views(V, F, cameras, [dict(e) for e in DEFAULT_EMITTERS], spp=64):
+        np.testing.assert_allclose(view.mask[15:17, 15:17], 1.0)
+        assert view.mask.sum() == pytest.approx(math.pi * rho**2, rel=0.02)
+        ys, xs = np.mgrid[0:32, 0:32] + 0.5
+        np.testing.assert_allclose([(view.mask * xs).sum() / view.mask.sum(), (view.mask * ys).sum() / view.mask.sum()],
+                                   [16.0, 16.0], atol=0.05)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: orbit_camera(None), "orbit_camera(): expected a bbox (lo, hi) of two (3,) corners, got NoneType"),
+    (lambda: orbit_camera(([0, 0, 0], [1, 1, 1], [2, 2, 2])),
+     "orbit_camera(): expected a bbox (lo, hi) of two (3,) corners, got tuple of 3 items"),
+    (lambda: orbit_camera(([0, 0], [1, 1])),
+     "orbit_camera(): expected a bbox (lo, hi) of two (3,) corners, got shapes (2,) and (2,)"),
+    (lambda: orbit_camera(([0, 0, 0], [1, 1, -1])), "orbit_camera(): expected a bbox of finite corners with lo <= hi "
+     "and a diagonal > 0, got lo = [0.0, 0.0, 0.0], hi = [1.0, 1.0, -1.0]"),
+    (lambda: orbit_camera(([0, 0, 0], [0, 0, 0])), "orbit_camera(): expected a bbox of finite corners with lo <= hi "
+     "and a diagonal > 0, got lo = [0.0, 0.0, 0.0], hi = [0.0, 0.0, 0.0]"),
+    (lambda: orbit_camera(BOX, math.nan), "orbit_camera(): expected a finite azimuth in degrees, got nan"),
+    (lambda: orbit_camera(BOX, 0.0, "up"), "orbit_camera(): expected a finite elevation in degrees, got up"),
+    (lambda: orbit_camera(BOX, fov=180.0), "orbit_camera(): expected fov in (0, 180) degrees, got 180.0"),
+    (lambda: orbit_camera(BOX, resolution=0), "orbit_camera(): expected an integer resolution >= 1, got 0"),
+    (lambda: orbit_camera(BOX, margin=0.0), "orbit_camera(): expected a margin > 0, got 0.0"),
+    (lambda: rig_cameras(0, BOX, 16), "rig_cameras(): expected an integer n_views >= 1, got 0"),
+    (lambda: rig_cameras(2.0, BOX, 16), "rig_cameras(): expected an integer n_views >= 1, got 2.0"),
+    (lambda: rig_cameras(2, ([0, 0, math.inf], [1, 1, 1]), 16), "rig_cameras(): expected a bbox of finite corners "
+     "with lo <= hi and a diagonal > 0, got lo = [0.0, 0.0, inf], hi = [1.0, 1.0, 1.0]"),
+    (lambda: rig_cameras(2, BOX, True), "rig_cameras(): expected an integer resolution >= 1, got True"),
+    (lambda: rig_cameras(2, BOX, 16, fov=-5.0), "rig_cameras(): expected fov in (0, 180) degrees, got -5.0"),
+])
+def test_cameras_framing_a_box_refuse_bad_input(call, message):
+    with pytest.raises(ValueError, match=exactly(message)):
+        call()

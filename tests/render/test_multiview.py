@@ -17,8 +17,8 @@ from mi_loop.fitting.options import SequenceOptions
 from mi_loop.fitting.static import sample_parameters
 from mi_loop.mesh.geometry import vertex_normals
 from mi_loop.mesh.sampling import sample_surface
+from mi_loop.render.cameras import _direction
 from mi_loop.render.multiview import Renderer, rig_views
-from mi_loop.render.scene import _direction
 
 from helpers import CAMERA_BOX, as_numpy, flat, sphere_mesh
 
