@@ -2,7 +2,7 @@
 
 :func:`fit_images` fits control points ``x`` and a per-control-vertex albedo
 ``c`` to photos with known cameras and lighting, minimising the mean L1 image
-loss of :class:`~mi_loop.render.photo.PhotoRenderer` (silhouettes and shading)
+loss of :class:`~mi_loop.render.images.ImageRenderer` (silhouettes and shading)
 plus a small uniform-Laplacian term that keeps the cage spread:
 
 ``E(x, c) = mean_k |R_k(x, c) - T_k|_1 + laplacian |L x|^2 / (n d^2)``.
@@ -247,10 +247,10 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
     from mi_loop.fitting import terms
     from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, optimise
     from mi_loop.fitting.optimisers import Adam, Constant, Exponential
-    from mi_loop.render.photo import PhotoRenderer
+    from mi_loop.render.images import ImageRenderer
 
     n, n_it = len(V), stage["iterations"]
-    renderer = PhotoRenderer(V, F, c, views, emitters, level=stage["level"], spp=options.spp,
+    renderer = ImageRenderer(V, F, views, emitters, albedo=c, level=stage["level"], spp=options.spp,
                              integrator=options.integrator, deterministic=options.deterministic)
     smooth = SmoothParameterisation(F, n, options.lam)
     albedo = mi.Float(np.asarray(c, dtype=np.float32).ravel())

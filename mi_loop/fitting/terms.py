@@ -253,7 +253,7 @@ class ImageTerm(Term):
                  shaping=None, seeds):
         self.renderer, self.albedo = renderer, albedo
         self.k, self.every, self.to_world, self.shaping = int(views_per_iteration), int(every), to_world, shaping
-        self.n_views = len(renderer.views)
+        self.n_views = renderer.n_views
         self._rng, self._seeds, self._order = seeds.generator(0), seeds, []
 
     def refresh(self, state) -> None:
@@ -280,7 +280,7 @@ class ImageTerm(Term):
         dr.enable_grad(x)
         if fit_albedo:
             dr.enable_grad(c)
-        losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it) >> 12)
+        losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it))
         g = dr.grad(x)
         if self.to_world is not None:
             g = g * self.to_world[0]
