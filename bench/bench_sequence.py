@@ -289,11 +289,11 @@ def cost_part(args):
 
 def per_frame_costs(V, F_t, x0, F, norm, renderer):
     """Seconds of the per-frame steps of ``mi-loop fit-sequence`` that are not iterations."""
-    from mi_loop.app.sequence_job import _frame_metrics
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
     from mi_loop.mesh.geometry import vertex_normals
     from mi_loop.mesh.sampling import sample_surface
+    from mi_loop.metrics import two_sided
     from mi_loop.subdiv.masks import limit_mesh
 
     out, t = {}, time.perf_counter()
@@ -313,7 +313,7 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
     lap(f"target renders ({len(renderer.views)} views, {renderer.options.target_spp} spp)")
     limit = limit_mesh(norm.inverse(x0), F, level=2)
     lap("limit mesh for output (level 2, P + du + dv rows, SciPy)")
-    _frame_metrics(limit, (V, F_t), P)
+    two_sided(limit[0], limit[1], V, F_t, n_samples=30_000)        # as fit-sequence's per-frame metrics
     lap("metrics.csv distances (two_sided, 30k samples per side)")
     return out
 

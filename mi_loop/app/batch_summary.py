@@ -12,11 +12,12 @@ linked to its own ``report.html``.
 from __future__ import annotations
 
 import csv
-import json
 from io import StringIO
 from pathlib import Path
 
 from mi_loop import io
+from mi_loop.app.results import FIT_OUTPUTS, SEQUENCE_OUTPUTS
+from mi_loop.io import runs
 
 __all__ = ["COLUMNS", "FIT_METRICS", "INDEX", "SEQUENCE_METRICS", "SEQUENCE_OUTPUTS", "SUMMARY", "complete",
            "read_metrics", "write_index", "write_summary"]
@@ -28,8 +29,6 @@ FIT_METRICS = ("mean", "rms", "hausdorff", "p2s_mean", "p2s_max", "s2p_mean", "s
                "self_intersecting_pct", "iterations", "converged")
 #: Or, for sequences: frames fitted and the last frame's row of ``metrics.csv``.
 SEQUENCE_METRICS = ("frames", "last_frame", "mean", "rms", "hausdorff", "flipped_pct", "drift_mean", "drift_p95")
-#: The files a finished ``fit-sequence`` has written besides ``control/``, ``limit/`` and ``state/``.
-SEQUENCE_OUTPUTS = ("sequence.json", "metrics.csv", "drift.png", "strip.png", "sequence.glb", "report.html")
 #: The summary's file name in OUTDIR.
 SUMMARY = "summary.csv"
 #: The index page's file name in OUTDIR (and of each input's report in ``OUTDIR/<name>/``).
@@ -45,17 +44,15 @@ def complete(output: Path, sequence: bool) -> bool:
         ``OUTDIR/<name>``.
     sequence : bool
         Outputs of ``fit-sequence`` (:data:`SEQUENCE_OUTPUTS` and ``control/``) instead of
-        ``fit``'s (:data:`mi_loop.app.fit_job.OUTPUTS`).
+        ``fit``'s (:data:`~mi_loop.app.results.FIT_OUTPUTS`).
 
     Returns
     -------
     bool
     """
-    from mi_loop.app.fit_job import OUTPUTS
-
     if sequence:
         return all((output / name).is_file() for name in SEQUENCE_OUTPUTS) and (output / "control").is_dir()
-    return all((output / name).is_file() for name in OUTPUTS)
+    return all((output / name).is_file() for name in FIT_OUTPUTS)
 
 
 def read_metrics(output: Path, sequence: bool) -> dict:
@@ -71,15 +68,20 @@ def read_metrics(output: Path, sequence: bool) -> dict:
     Returns
     -------
     dict
-        :data:`FIT_METRICS` or :data:`SEQUENCE_METRICS` -> value (``''`` where the file has none).
+        :data:`FIT_METRICS` or :data:`SEQUENCE_METRICS` -> value (``''`` where the file has none); a
+        sequence's values are the cells of ``metrics.csv``'s last row as written.
+
+    Raises
+    ------
+    ValueError
+        A ``metrics.csv`` or ``report.json`` that does not read (:mod:`mi_loop.io.runs`).
     """
     if sequence:
-        with open(output / "metrics.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
-        last = rows[-1] if rows else {}
+        rows = runs.read_metrics(output / "metrics.csv", "fit-batch summary", older=True)
+        last = rows[-1].cells() if rows else {}
         return {"frames": len(rows), "last_frame": last.get("name", ""),
                 **{k: last.get(k, "") for k in SEQUENCE_METRICS[2:]}}
-    report = json.loads((output / "report.json").read_text())
+    report = runs.read_report(output / "report.json", "fit-batch summary")
     return {**{k: report["metrics"].get(k, "") for k in FIT_METRICS[:-2]},
             "iterations": report["params"].get("iterations_run", ""), "converged": report.get("converged", "")}
 

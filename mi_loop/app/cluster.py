@@ -10,11 +10,10 @@ workers need mi_loop installed and the inputs and OUTDIR at the same paths
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
-from pathlib import Path
 
 from mi_loop.errors import fail
+from mi_loop.io.documents import read_json
 
 __all__ = ["CONNECT_TIMEOUT", "LOCAL_WORKERS", "connect", "dashboard_link", "scheduler_address"]
 
@@ -51,13 +50,7 @@ def scheduler_address(scheduler: str) -> str:
     """
     if "://" in scheduler:
         return scheduler
-    path = Path(scheduler)
-    if not path.is_file():
-        fail("fit-batch --scheduler", _SCHEDULER, f"'{scheduler}': no such file")
-    try:
-        info = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        fail("fit-batch --scheduler", _SCHEDULER, f"'{scheduler}': not a JSON file ({exc})")
+    info = read_json(scheduler, "fit-batch --scheduler", _SCHEDULER)
     address = info.get("address") if isinstance(info, dict) else None
     if not isinstance(address, str) or "://" not in address:
         fail("fit-batch --scheduler", _SCHEDULER, f"'{scheduler}' without an 'address' protocol://host:port")

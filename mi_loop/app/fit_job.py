@@ -35,14 +35,14 @@ import time
 from pathlib import Path
 
 from mi_loop import io
-from mi_loop.app.export_job import VIEW_LEVELS
+from mi_loop.app.results import FIT_OUTPUTS, VIEW_LEVELS
 from mi_loop.fitting.options import FitOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
 __all__ = ["OUTPUTS", "run"]
 
-#: The files ``mi-loop fit`` writes into OUTDIR, in this order.
-OUTPUTS = ("control.ply", "limit.ply", "limit.glb", "report.json", "report.html", "loss.png", "render.png")
+#: The files ``mi-loop fit`` writes into OUTDIR, in this order (:data:`mi_loop.app.results.FIT_OUTPUTS`).
+OUTPUTS = FIT_OUTPUTS
 
 _TERM_WEIGHTS = {"IMLS": None, "coverage": "cover", "ARAP": "alpha", "fold": "fold"}
 

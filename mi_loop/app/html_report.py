@@ -1,4 +1,4 @@
-"""``report.html``: one self-contained page per result, drawn by the vendored three.js (no file I/O).
+"""``report.html``: one self-contained page per result, drawn by the vendored three.js (its files read through io).
 
 A page needs nothing but itself: opened from the file system (``file://``)
 without a network it has everything inlined, as classic scripts (a page on
@@ -28,11 +28,11 @@ from __future__ import annotations
 import base64
 import html
 import json
-from importlib import resources
 
 import numpy as np
 
 from mi_loop.errors import fail
+from mi_loop.io.documents import read_package_text
 
 __all__ = ["THREE_REVISION", "index_page", "sequence_page", "static_page"]
 
@@ -43,7 +43,8 @@ _TOP_QUANTILE = 0.98
 
 
 def _asset(name: str) -> str:
-    return (resources.files("mi_loop.app") / "viewer" / name).read_text(encoding="utf-8")
+    """The viewer's file ``name`` (``mi_loop/app/viewer/``), read through :mod:`mi_loop.io`."""
+    return read_package_text("mi_loop.app", "viewer", name)
 
 
 def _script(text: str) -> str:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from mi_loop import io
-from mi_loop.app.export_job import VIEW_LEVELS, static_view
+from mi_loop.app.results import VIEW_LEVELS, static_view
 from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
@@ -69,14 +69,14 @@ def _evaluate(result, views, emitters, options, log):
     import mitsuba as mi
 
     from mi_loop.fitting.images import tessellation_level
-    from mi_loop.render.photo import PhotoRenderer
+    from mi_loop.render.images import ImageRenderer
 
     finest = _finest(views, options)
     shown = np.linspace(0, len(finest) - 1, min(SHOWN, len(finest))).round().astype(int).tolist()
     out = {}
     for name, (V, F, c) in {"start": (result.V0, result.F0, result.albedo0),
                             "end": (result.V, result.F, result.albedo)}.items():
-        r = PhotoRenderer(V, F, c, finest, emitters, level=tessellation_level(len(F), options.triangles),
+        r = ImageRenderer(V, F, finest, emitters, albedo=c, level=tessellation_level(len(F), options.triangles),
                           spp=options.spp, integrator=options.integrator)
         x, a = mi.Float(V.ravel().astype(np.float32)), mi.Float(c.ravel().astype(np.float32))
         out[name] = {"losses": r.losses(x, a, seed=99, spp=4 * options.spp),

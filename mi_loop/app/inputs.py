@@ -5,10 +5,11 @@
 - :func:`read_template`: a ``--template`` control mesh, validated, with the
   number of polygons the reader split into triangles, and checked to lie in the
   data's frame (:func:`check_template_frame`);
-- :class:`FrameReader`: the frames of a sequence, one at a time, the same way.
+- :class:`FrameReader`: the frames of a sequence, one at a time, the same way, each a :class:`FitFrame`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import numpy as np
 from mi_loop import io
 from mi_loop.errors import expected
 
-__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FrameReader", "check_template_frame", "load_input",
+__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "load_input",
            "read_template"]
 
 #: A template's bounding-box diagonal must be within this factor of the data's.
@@ -159,12 +160,34 @@ def read_template(path: Path, P, where: str, log):
     return V, F, info
 
 
+@dataclass(frozen=True, eq=False)
+class FitFrame:
+    """One frame of a sequence as fitting data: oriented points, and the mesh where the frame is one.
+
+    Attributes
+    ----------
+    name : str
+        The frame's name (:attr:`mi_loop.io.frames.FrameData.name`).
+    P : (k, 3) float NumPy array
+        Points: sampled on a mesh frame, or the point cloud's own.
+    N : (k, 3) float NumPy array
+        Their unit normals (a point cloud's estimated ones when its file has none).
+    mesh : tuple ``(V (n, 3) float, F (m, 3) int)`` or None
+        The frame's mesh; None for a point cloud.
+    """
+
+    name: str
+    P: np.ndarray
+    N: np.ndarray
+    mesh: tuple | None = None
+
+
 class FrameReader:
     """The frames of a sequence as fitting data, read one at a time.
 
     Parameters
     ----------
-    frames : list of callables
+    frames : list of mi_loop.io.frames.Frame
         :func:`mi_loop.io.read_frames` output.
     n_points : int
         Points sampled on every mesh frame.
@@ -182,32 +205,38 @@ class FrameReader:
         return len(self.frames)
 
     def _read(self, t: int):
+        """Frame ``t`` as read (:class:`~mi_loop.io.frames.FrameData`), checked, with normals where it needs them."""
+        from dataclasses import replace
+
         from mi_loop.mesh.points import estimate_normals
 
-        name, X, F, N = self.frames[t]()
+        frame = self.frames[t]()
+        X = frame.vertices
         if not np.isfinite(X).all():
             bad = int(np.flatnonzero(~np.isfinite(X).all(1))[0])
-            raise ValueError(expected("fit-sequence FRAMES", f"finite coordinates in frame {name}",
+            raise ValueError(expected("fit-sequence FRAMES", f"finite coordinates in frame {frame.name}",
                                       f"vertex {bad} = {X[bad].tolist()}"))
-        if F is None and N is None:
+        if frame.faces is None and frame.normals is None:
             if not self.normals_estimated:
                 self.log.say("point-cloud frames without normals: estimating and orienting normals "
                              "in every frame")
             self.normals_estimated = True
-            N = estimate_normals(X)
-        return name, X, F, N
+            frame = replace(frame, normals=estimate_normals(X))
+        return frame
 
-    def __call__(self, t: int):
-        """Frame ``t`` as ``(name, P (k, 3), N (k, 3), (V, F) of a mesh frame or None)``."""
+    def __call__(self, t: int) -> FitFrame:
+        """Frame ``t`` as a :class:`FitFrame` (a mesh frame sampled with ``seed + t``)."""
         from mi_loop.mesh.sampling import sample_surface
 
-        name, X, F, N = self._read(t)
-        if F is None:
-            return name, X, N, None
-        P, Np, _ = sample_surface(X, F, self.n_points, seed=self.seed + t)
-        return name, P, Np, (X, F)
+        frame = self._read(t)
+        if frame.faces is None:
+            return FitFrame(frame.name, frame.vertices, frame.normals)
+        P, Np, _ = sample_surface(frame.vertices, frame.faces, self.n_points, seed=self.seed + t)
+        return FitFrame(frame.name, P, Np, (frame.vertices, frame.faces))
 
     def target(self, t: int):
         """Frame ``t`` for the pictures: ``('mesh', V, F)`` or ``('points', P, N)``."""
-        _, X, F, N = self._read(t)
-        return ("mesh", X, F) if F is not None else ("points", X, N)
+        frame = self._read(t)
+        if frame.faces is not None:
+            return ("mesh", frame.vertices, frame.faces)
+        return ("points", frame.vertices, frame.normals)

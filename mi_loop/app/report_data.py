@@ -287,8 +287,8 @@ def sequence_report(view, names, targets, cages, rows, fps: float, *, title: str
         (the clean reference where there is one).
     cages : tuple ``(V_c (T, n, 3), F_c (f, 3))``
         The control mesh of every frame.
-    rows : list of dict
-        ``metrics.csv``'s rows (``frame``, ``mean``, ``rms``, ``flipped_pct``, ``drift_mean``, ``drift_p95``).
+    rows : list of mi_loop.io.runs.MetricsRow
+        ``metrics.csv``'s rows, one per finished frame.
     fps : float
         Frame rate of the player.
     title : str
@@ -301,16 +301,16 @@ def sequence_report(view, names, targets, cages, rows, fps: float, *, title: str
     distances = np.stack([vertex_distances(V[i], targets(i), N[i]) for i in range(len(V))])
 
     def column(key):
-        return [float(r[key]) if r.get(key) not in (None, "") else np.nan for r in rows]
+        return [np.nan if getattr(r, key) is None else float(getattr(r, key)) for r in rows]
 
-    plots = {"frames": [int(r["frame"]) for r in rows], "panels": [
+    plots = {"frames": [r.frame for r in rows], "panels": [
         {"title": "distance to the target / bbox diagonal", "series": {"mean": column("mean"), "RMS": column("rms")}},
         {"title": "flipped area, % of the surface", "series": {"flipped": column("flipped_pct")}},
         {"title": "correspondence drift / bbox diagonal",
          "series": {"mean": column("drift_mean"), "p95": column("drift_p95")}}]}
     last = rows[-1]
-    tables = {"last frame": {"name": last["name"], **{k: float(last[k]) for k in ("mean", "rms", "hausdorff",
-                                                                                  "flipped_pct")}}}
+    tables = {"last frame": {"name": last.name, **{k: column(k)[-1] for k in ("mean", "rms", "hausdorff",
+                                                                                "flipped_pct")}}}
     return html_report.sequence_page(
         title, V, F, N, names=names, fps=fps, subtitle=f"{len(V)} frames, {cages[0].shape[1]} control vertices",
         distances={"the frame's target": distances}, colors=C, cages=cages, plots=plots, tables=tables)

@@ -7,7 +7,13 @@ through it); it sits just above :mod:`mi_loop.mesh`.
   count of polygons split into triangles), :func:`write_ply`, :func:`write_obj`;
 - :mod:`~mi_loop.io.glb`: :func:`write_glb` (a limit mesh with normals and colours) and
   :func:`write_glb_sequence` (frames in correspondence as morph targets, animated);
-- :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds);
+- :mod:`~mi_loop.io.frames`: :func:`read_frames` (sequences of meshes or point clouds, each frame
+  read as a :class:`FrameData`);
+- :mod:`~mi_loop.io.runs`: the files a ``fit-sequence`` run reads back, one writer and one reader
+  each: ``metrics.csv`` (:class:`MetricsRow`), ``sequence.json`` (:class:`RunRecord`),
+  ``state/NNNN.npz`` (:class:`FrameState`), and a fit's ``report.json`` (:func:`read_report`);
+- :mod:`~mi_loop.io.documents`: JSON files (:func:`read_json`) and the package's own text files
+  (:func:`read_package_text`, the report viewer's scripts);
 - :mod:`~mi_loop.io.animation`: :func:`bake_animation` (a skinned or node-animated glTF clip as
   meshes in correspondence, :class:`BakedAnimation`), :func:`animation_names`; it reads files
   through :mod:`~mi_loop.io.gltf` (GLB / glTF container, accessors, base colours);
@@ -34,6 +40,7 @@ from mi_loop.io.capture import (
     read_capture,
     write_capture,
 )
+from mi_loop.io.documents import read_json, read_package_text
 from mi_loop.io.files import (
     atomic_open,
     ensure_writable_dir,
@@ -43,7 +50,7 @@ from mi_loop.io.files import (
     write_png,
     write_text,
 )
-from mi_loop.io.frames import FRAME_SUFFIXES, read_frames
+from mi_loop.io.frames import FRAME_SUFFIXES, FrameData, read_frames
 from mi_loop.io.glb import write_glb, write_glb_sequence
 from mi_loop.io.meshes import (
     MESH_SUFFIXES,
@@ -56,6 +63,18 @@ from mi_loop.io.meshes import (
     write_ply,
 )
 from mi_loop.io.points import POINT_SUFFIXES, load_oriented_points
+from mi_loop.io.runs import (
+    FrameState,
+    MetricsRow,
+    RunRecord,
+    read_metrics,
+    read_report,
+    read_run_json,
+    read_state,
+    write_metrics,
+    write_run_json,
+    write_state,
+)
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
 
 __all__ = [
@@ -67,6 +86,10 @@ __all__ = [
     "Camera",
     "Capture",
     "ControlMesh",
+    "FrameData",
+    "FrameState",
+    "MetricsRow",
+    "RunRecord",
     "View",
     "animation_names",
     "atomic_open",
@@ -78,8 +101,14 @@ __all__ = [
     "read_capture",
     "read_control_mesh",
     "read_frames",
+    "read_json",
     "read_mesh",
     "read_creases",
+    "read_metrics",
+    "read_package_text",
+    "read_report",
+    "read_run_json",
+    "read_state",
     "read_vertex_colors",
     "remove_if_empty",
     "srgb_to_linear",
@@ -87,8 +116,11 @@ __all__ = [
     "write_capture",
     "write_glb",
     "write_glb_sequence",
+    "write_metrics",
     "write_obj",
     "write_ply",
     "write_png",
+    "write_run_json",
+    "write_state",
     "write_text",
 ]

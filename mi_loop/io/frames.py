@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import glob
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,20 +19,42 @@ from mi_loop.errors import fail
 from mi_loop.io.meshes import read_mesh
 from mi_loop.io.points import load_oriented_points
 
-__all__ = ["FRAME_SUFFIXES", "Frame", "frame_range", "read_frames", "select_frames"]
+__all__ = ["FRAME_SUFFIXES", "Frame", "FrameData", "frame_range", "read_frames", "select_frames"]
 
 #: Suffixes of the files that :func:`read_frames` takes from a directory, sorted by name.
 FRAME_SUFFIXES = (".ply", ".obj", ".off", ".glb", ".gltf", ".xyz", ".pts", ".npz")
 _MESHES = (".obj", ".off", ".glb", ".gltf")
 
 
+@dataclass(frozen=True, eq=False)
+class FrameData:
+    """One frame of a sequence as read: a mesh, or a point cloud with or without normals.
+
+    Attributes
+    ----------
+    name : str
+        The frame's name: its file name, ``stem[t]`` in an NPZ sequence, or the baked animation's frame name.
+    vertices : (k, 3) float NumPy array
+        A mesh's vertices, or a point cloud's points.
+    faces : (m, 3) int NumPy array or None
+        A mesh's triangles; None for a point cloud.
+    normals : (k, 3) float NumPy array or None
+        A point cloud's normals; None for a mesh or for a point cloud whose file has none.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray | None = None
+    normals: np.ndarray | None = None
+
+
 class Frame:
-    """One frame of a sequence, read when called: ``frame()`` -> ``(name, V_or_P, F_or_None, N_or_None)``.
+    """One frame of a sequence, read when called: ``frame()`` -> :class:`FrameData`.
 
     Parameters
     ----------
     read : callable
-        Reads the frame (no arguments).
+        Reads the frame (no arguments) and returns its :class:`FrameData`.
     correspondence : bool
         See :attr:`correspondence`.
 
@@ -46,7 +69,7 @@ class Frame:
     def __init__(self, read, correspondence: bool = False):
         self._read, self.correspondence = read, bool(correspondence)
 
-    def __call__(self):
+    def __call__(self) -> FrameData:
         return self._read()
 
 
@@ -135,7 +158,7 @@ def read_frames(inputs, *, animation: str | None = None, fps: float = 24.0) -> l
     Returns
     -------
     list of Frame
-        ``frames[t]()`` reads frame ``t`` and returns ``(name, V_or_P, F_or_None, N_or_None)``:
+        ``frames[t]()`` reads frame ``t`` and returns its :class:`FrameData`:
         a mesh's vertices and faces, or a point cloud's points and normals
         (None when the file has none).
 
@@ -152,7 +175,7 @@ def read_frames(inputs, *, animation: str | None = None, fps: float = 24.0) -> l
     ...     for name in ("b.xyz", "a.xyz", "readme.txt"):
     ...         _ = open(os.path.join(d, name), "w").write("0 0 0\\n1 0 0\\n0 1 0\\n")
     ...     frames = read_frames([d])
-    ...     [frame()[0] for frame in frames]
+    ...     [frame().name for frame in frames]
     ['a.xyz', 'b.xyz']
     """
     if animation is not None:
@@ -198,7 +221,7 @@ def _npz_sequence(path: Path) -> list:
         fail("read_frames", f"{want} in '{path}', with T > 0", f"vertices of shape {Vs.shape}")
     if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
         fail("read_frames", f"{want} in '{path}'", f"faces of shape {F.shape} and dtype {F.dtype}")
-    return [Frame(lambda t=t: (f"{path.stem}[{t}]", Vs[t], F, None), correspondence=True) for t in range(len(Vs))]
+    return [Frame(lambda t=t: FrameData(f"{path.stem}[{t}]", Vs[t], F), correspondence=True) for t in range(len(Vs))]
 
 
 def _animation(inputs, animation: str, fps: float) -> list:
@@ -210,7 +233,7 @@ def _animation(inputs, animation: str, fps: float) -> list:
     if not paths[0].is_file():
         fail("read_frames --animation", "an existing glTF/GLB file", f"'{paths[0]}': no such file")
     baked = bake_animation(paths[0], animation, fps=fps)
-    return [Frame(lambda t=t: (baked.names[t], baked.vertices[t], baked.faces, None), correspondence=True)
+    return [Frame(lambda t=t: FrameData(baked.names[t], baked.vertices[t], baked.faces), correspondence=True)
             for t in range(len(baked.vertices))]
 
 
@@ -218,9 +241,9 @@ def _reader(p: Path):
     def read():
         if p.suffix.lower() in _MESHES or _ply_has_faces(p):
             V, F = read_mesh(p)
-            return p.name, V, F, None
+            return FrameData(p.name, V, F)
         P, N, _ = load_oriented_points(p)
-        return p.name, P, None, N
+        return FrameData(p.name, P, None, N)
     return read
 
 

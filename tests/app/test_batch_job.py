@@ -316,3 +316,34 @@ def test_quiet_and_debug_go_before_or_after_fit_batch_in_both_modes():
             assert args.quiet is True and args.debug is False and args.sequences == ("--sequences" in command)
         assert parser.parse_args(command).quiet is False
     assert parser.parse_args(["fit-batch", "--seq", "s", "-o", "x", "--views", "3"]).views == 3   # abbreviated
+
+
+def test_the_summary_reads_a_sequences_last_row_and_a_fits_report_as_written(tmp_path):
+    """metrics.csv through mi_loop.io.runs: a frame name with a comma, empty drift cells, cells as written;
+    and a summary.csv row of them reads back as the same cells."""
+    from mi_loop.io.runs import MetricsRow, write_metrics
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    write_metrics(seq / "metrics.csv", [
+        MetricsRow(0, "a", 0.1, 0.2, 0.3, 0.0, 0.01, 0.02, 1.0, 0.0, 30),
+        MetricsRow(1, "scan 1, left", 1 / 3, 0.5, 1.25, 2.5, None, None, 1.5, 0.25, 20)])
+    metrics = batch_summary.read_metrics(seq, True)
+    assert metrics == {"frames": 2, "last_frame": "scan 1, left", "mean": "0.333333", "rms": "0.5",
+                       "hausdorff": "1.25", "flipped_pct": "2.5", "drift_mean": "", "drift_p95": ""}
+    path = batch_summary.write_summary(tmp_path / "summary.csv", ["seq"], {"seq": {"input": "s", "status": "done",
+                                                                                  **metrics}}, True)
+    with open(path, newline="") as f:
+        row, = csv.DictReader(f)
+    assert row["last_frame"] == "scan 1, left" and row["drift_mean"] == "" and row["frames"] == "2"
+    fit = tmp_path / "fit"
+    fit.mkdir()
+    (fit / "report.json").write_text(json.dumps({"metrics": {"mean": 0.1, "rms": 0.2}, "params": {"iterations_run": 7},
+                                                 "converged": True}))
+    metrics = batch_summary.read_metrics(fit, False)
+    assert (metrics["mean"], metrics["hausdorff"], metrics["iterations"], metrics["converged"]) == (0.1, "", 7, True)
+    (fit / "report.json").write_text("[]")
+    with pytest.raises(ValueError) as info:
+        batch_summary.read_metrics(fit, False)
+    assert str(info.value) == ("fit-batch summary: expected a report.json of mi-loop fit, a JSON object, got a list in "
+                               f"'{fit / 'report.json'}'")

@@ -15,7 +15,7 @@ from mi_loop.app import batch_job
 from mi_loop.app import cluster as cluster_module
 from mi_loop.app.cli import main
 from mi_loop.app.parser import build_parser
-from mi_loop.app.sequence_job import CSV_HEADER
+from mi_loop.io.runs import CSV_HEADER
 from mi_loop.subdiv.masks import limit_colors, limit_mesh
 
 from helpers import one_line_error, parse_glb, torus_cloud, write_xyz
@@ -106,6 +106,25 @@ def test_a_sequence_exports_as_one_animated_glb_at_its_rate(tmp_path, capsys):
     assert main(["export", str(older), "--quiet"]) == 0
     doc, read = parse_glb(older / "export" / "sequence.glb")
     assert read(doc["animations"][0]["samplers"][0]["input"]).ravel()[1] == np.float32(1 / 24)
+
+
+def test_frame_names_with_commas_and_older_runs_export(tmp_path, capsys):
+    """metrics.csv goes through the csv module: a frame name with a comma is one name; a run from before the
+    fold and drift columns (its older header) still exports."""
+    from mi_loop.io.runs import OLDER_COLUMNS, MetricsRow, write_metrics
+
+    out = write_sequence(tmp_path / "seq")
+    write_metrics(out / "metrics.csv", [MetricsRow(t, f"scan {t}, left", 0.001, 0.001, 0.002, 0.0, None, None, 1.0,
+                                                   0.0, 10) for t in range(3)])
+    assert main(["export", str(out), "--quiet"]) == 0
+    doc, _ = parse_glb(out / "export" / "sequence.glb")
+    assert doc["meshes"][0]["extras"]["targetNames"] == ["scan 0, left", "scan 1, left", "scan 2, left"]
+    older = write_sequence(tmp_path / "older")
+    (older / "metrics.csv").write_text(",".join(OLDER_COLUMNS) + "\n"
+                                       + "".join(f"{t},walk[{t}],0.001,0.001,0.002,1.0,0.0,10\n" for t in range(3)))
+    assert main(["export", str(older), "--quiet"]) == 0
+    doc, _ = parse_glb(older / "export" / "sequence.glb")
+    assert doc["meshes"][0]["extras"]["targetNames"] == ["walk[0]", "walk[1]", "walk[2]"]
 
 
 def test_a_sequence_exports_as_one_file_per_frame_with_its_colours(tmp_path, capsys):

@@ -49,7 +49,7 @@ def runs(tmp_path_factory):
     from mi_loop.io.capture import write_capture
     from mi_loop.io.emitters import DEFAULT_EMITTERS
     from mi_loop.render.cameras import fibonacci_cameras
-    from mi_loop.render.photo import render_views
+    from mi_loop.render.captures import render_views
 
     root = tmp_path_factory.mktemp("reports")
     assert main(["fit", "--demo", "-o", str(root / "fit"), "--vertices", "100", "--iterations", "40",

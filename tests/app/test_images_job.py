@@ -12,7 +12,7 @@ from mi_loop.app.cli import main
 from mi_loop.io.capture import write_capture
 from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.render.cameras import fibonacci_cameras
-from mi_loop.render.photo import render_views
+from mi_loop.render.captures import render_views
 from mi_loop.subdiv.masks import limit_mesh
 
 from helpers import one_line_error

@@ -392,7 +392,7 @@ def test_a_quoted_glob_selects_frames_in_name_order(tmp_path, capsys):
         io.write_ply(tmp_path / f"f_{t:02d}.ply", *sphere_mesh(1.0 + 0.1 * t))
     (tmp_path / "f_notes.txt").write_text("not a frame\n")
     frames = io.read_frames([str(tmp_path / "f_0[0-2].ply")])
-    assert [frame()[0] for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.ply"]
+    assert [frame().name for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.ply"]
     line = one_line_error(capsys, ["fit-sequence", str(tmp_path / "g_*.ply"), "-o", str(tmp_path / "out")])
     assert line == ("mi-loop: error: read_frames(): expected frame files matching the pattern, got none for "
                     f"'{tmp_path / 'g_*.ply'}'")
@@ -478,6 +478,36 @@ def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, 
         assert float(r["mean"]) < 0.01
 
 
+def test_sequence_json_records_the_options_the_run_used(inputs, tmp_path, capsys, monkeypatch):
+    """Point-cloud frames without --images: the image term is off, decided before sequence.json records the
+    options; every frame is fitted with exactly the recorded options, the caller's are left as given, and a
+    --resume of the run (nothing left to fit) finds no difference to warn about."""
+    from dataclasses import asdict
+
+    from mi_loop.app import sequence_job
+    from mi_loop.app.progress import Reporter
+
+    used = []
+    real = mi_loop.fitting.sequence.fit_frame
+
+    def spy(*args, **kwargs):
+        used.append(asdict(args[6]))                  # fit_frame(x0, F, points, normals, op, image, options, ...)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(mi_loop.fitting.sequence, "fit_frame", spy)
+    given = SequenceOptions(iterations=5, first_iterations=5, n_points=1000)
+    out, frames = tmp_path / "out", point_frames(tmp_path)
+    sequence_job.run([frames], out, given, template=inputs[1], log=Reporter(quiet=True))
+    recorded = json.loads((out / "sequence.json").read_text())["options"]
+    assert recorded["image"] is False and given.image is True          # the caller's options are not changed
+    assert used == [recorded, recorded]                                # what both frames ran with
+    assert recorded == asdict(SequenceOptions(iterations=5, first_iterations=5, n_points=1000, image=False))
+    capsys.readouterr()
+    sequence_job.run([frames], out, given, template=inputs[1], resume=True, log=Reporter())
+    err = capsys.readouterr().err
+    assert "resuming after frame 1 (2 frames done)" in err and "warning" not in err
+    assert len(used) == 2                                              # nothing left to fit
+
+
 def test_image_only_needs_mesh_frames(inputs, tmp_path, capsys):
     line = one_line_error(capsys, ["fit-sequence", str(point_frames(tmp_path, 1)), "-o", str(tmp_path / "out"),
                                    "--template", str(inputs[1]), "--image-only"])
@@ -504,6 +534,7 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
     from dataclasses import asdict
 
     import mi_loop.app.sequence_job
+    from mi_loop.io.runs import RunRecord
 
     out = tmp_path / "out"
     run_ok(argv(inputs, out, "--no-image", "--deterministic", "--quiet"))
@@ -527,9 +558,11 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
     assert state["template"]["source"] == "file" and state["template"]["n_vertices"] == 42
     assert state["normals_estimated"] is False and state["variant"] == "llvm_ad_rgb" and state["n_frames"] == 3
     readme = (REPO / "README.md").read_text()
+    assert list(state) == list(RunRecord.__dataclass_fields__)        # one writer: RunRecord's keys, in order
     for key in state:                                                  # every key is documented
-        assert f"``{key}``" in mi_loop.app.sequence_job.__doc__, key
+        assert f"{key} :" in RunRecord.__doc__, key
         assert f"`{key}`" in readme, key
+    assert "mi_loop.io.runs.RunRecord" in mi_loop.app.sequence_job.__doc__
 
 
 def test_fit_sequence_draws_a_progress_bar_on_a_terminal(inputs, tmp_path, monkeypatch):
@@ -659,3 +692,19 @@ def test_resume_without_sequence_json_is_refused(inputs, tmp_path, capsys, monke
     assert line == ("mi-loop: error: fit-sequence --resume: expected the run's sequence.json next to its "
                     f"metrics.csv, got no '{out / 'sequence.json'}'")
     assert [int(r["frame"]) for r in read_rows(out)] == [0]              # the finished frame is kept
+
+
+def test_resume_of_an_older_runs_metrics_is_refused_with_the_fix(inputs, tmp_path, capsys):
+    """A metrics.csv of the columns before flipped_pct and drift: --resume names the fix; nothing is changed."""
+    from mi_loop.io.runs import CSV_HEADER, OLDER_COLUMNS
+
+    out = tmp_path / "out"
+    (out / "control").mkdir(parents=True)
+    text = ",".join(OLDER_COLUMNS) + "\n0,seq[0],0.001,0.002,0.01,3.5,0.4,30\n"
+    (out / "metrics.csv").write_text(text)
+    line = one_line_error(capsys, argv(inputs, out, "--no-image", "--resume"))
+    assert line == (f"mi-loop: error: fit-sequence --resume: expected a metrics.csv with the columns {CSV_HEADER}, "
+                    f"got '{','.join(OLDER_COLUMNS)}' in '{out / 'metrics.csv'}' (a run of an older version: start "
+                    "it again without --resume)")
+    assert (out / "metrics.csv").read_text() == text
+    assert sorted(p.name for p in out.iterdir()) == ["control", "metrics.csv"]

@@ -310,8 +310,9 @@ def test_fox_texture_colours(fox_walk):
 
 def test_read_frames_bakes_an_animation():
     frames = io.read_frames([FOX], animation="Walk", fps=24.0)
-    name, V, F, N = frames[17]()
-    assert len(frames) == 18 and name == "Fox.glb[Walk#17@0.708s]" and V.shape == (290, 3) and N is None
+    frame = frames[17]()
+    assert len(frames) == 18 and frame.name == "Fox.glb[Walk#17@0.708s]"
+    assert frame.vertices.shape == (290, 3) and frame.faces.shape == (576, 3) and frame.normals is None
     assert frames[0].correspondence
 
 

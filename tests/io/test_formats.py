@@ -327,7 +327,7 @@ def test_shared_fox_glb():
     _, _, info = io.load_oriented_points(fox, n_samples=1000)
     assert info["kind"] == "mesh" and info["format"] == "glb" and info["n_file"] == 290
     frames = io.read_frames([fox])
-    name, V_frame, F_frame, N_frame = frames[0]()
-    assert len(frames) == 1 and name == "Fox.glb" and N_frame is None
-    np.testing.assert_array_equal(V_frame, mesh.V)
-    np.testing.assert_array_equal(F_frame, mesh.F)
+    frame = frames[0]()
+    assert len(frames) == 1 and frame.name == "Fox.glb" and frame.normals is None
+    np.testing.assert_array_equal(frame.vertices, mesh.V)
+    np.testing.assert_array_equal(frame.faces, mesh.F)

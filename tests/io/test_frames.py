@@ -18,16 +18,17 @@ def test_npz_sequence(tmp_path):
     np.savez(tmp_path / "seq.npz", vertices=np.stack([V, 2 * V, 3 * V]).astype(np.float32), faces=F)
     frames = io.read_frames([tmp_path / "seq.npz"])
     assert len(frames) == 3
-    name, V2, F2, N = frames[2]()
-    assert name == "seq[2]" and N is None
-    np.testing.assert_array_equal(V2, (3 * V).astype(np.float32))
-    np.testing.assert_array_equal(F2, F)
+    frame = frames[2]()
+    assert frame.name == "seq[2]" and frame.normals is None
+    np.testing.assert_array_equal(frame.vertices, (3 * V).astype(np.float32))
+    np.testing.assert_array_equal(frame.faces, F)
 
 
 def test_shared_npz_sequence():
     frames = io.read_frames([DATA / "sequences" / "fox_walk_24f.npz"])
-    name, V, F, _ = frames[23]()
-    assert len(frames) == 24 and name == "fox_walk_24f[23]" and V.shape == (290, 3) and F.shape == (576, 3)
+    frame = frames[23]()
+    assert len(frames) == 24 and frame.name == "fox_walk_24f[23]"
+    assert frame.vertices.shape == (290, 3) and frame.faces.shape == (576, 3)
 
 
 def test_npz_without_the_sequence_arrays(tmp_path):
@@ -61,11 +62,11 @@ def test_directory_takes_only_mesh_and_point_files(tmp_path):
         (tmp_path / junk).write_bytes(b"not a frame\n")
     (tmp_path / "sub.ply").mkdir()                      # a directory with a frame suffix is not a frame either
     frames = io.read_frames([tmp_path])
-    assert [frame()[0] for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.xyz"]
-    _, P, F_none, N = frames[2]()
-    assert F_none is None and N is None
-    np.testing.assert_allclose(P, V)
-    np.testing.assert_array_equal(frames[0]()[1], 2 * V)
+    assert [frame().name for frame in frames] == ["f_00.ply", "f_01.ply", "f_02.xyz"]
+    cloud = frames[2]()
+    assert cloud.faces is None and cloud.normals is None
+    np.testing.assert_allclose(cloud.vertices, V)
+    np.testing.assert_array_equal(frames[0]().vertices, 2 * V)
 
 
 def test_text_frames_given_by_name_or_pattern(tmp_path):
@@ -74,9 +75,9 @@ def test_text_frames_given_by_name_or_pattern(tmp_path):
     np.savetxt(tmp_path / "scan_0.txt", V)
     np.savetxt(tmp_path / "scan_1.txt", 2 * V)
     frames = io.read_frames([tmp_path / "scan_1.txt"])
-    np.testing.assert_allclose(frames[0]()[1], 2 * V)
+    np.testing.assert_allclose(frames[0]().vertices, 2 * V)
     frames = io.read_frames([str(tmp_path / "scan_*.txt")])
-    assert [frame()[0] for frame in frames] == ["scan_0.txt", "scan_1.txt"]
+    assert [frame().name for frame in frames] == ["scan_0.txt", "scan_1.txt"]
 
 
 def test_mixed_frame_kinds(tmp_path):
@@ -87,9 +88,10 @@ def test_mixed_frame_kinds(tmp_path):
     P = V + 0.01
     np.savez(tmp_path / "c.npz", points=P, normals=V)
     frames = io.read_frames([tmp_path / "a.ply", tmp_path / "b.obj", tmp_path / "c.npz"])
-    kinds = [(name, F_ is None, N is None) for name, _, F_, N in (frame() for frame in frames)]
+    kinds = [(f.name, f.faces is None, f.normals is None) for f in (frame() for frame in frames)]
     assert kinds == [("a.ply", False, True), ("b.obj", False, True), ("c.npz", True, False)]
-    np.testing.assert_array_equal(frames[1]()[2], F)
+    np.testing.assert_array_equal(frames[1]().faces, F)
+    np.testing.assert_allclose(frames[2]().normals, V / np.linalg.norm(V, axis=1, keepdims=True))   # its own, unit
 
 
 def test_missing_inputs_named(tmp_path):

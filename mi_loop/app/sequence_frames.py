@@ -1,0 +1,319 @@
+"""The frame loop of ``fit-sequence``: fit each frame, measure it, write it atomically.
+
+- :class:`SequenceRun`: what the loop carries from frame to frame;
+- :class:`FrameFitter`: the job's one caller of :mod:`mi_loop.fitting` and
+  :mod:`mi_loop.render` for the frames (limit operators, camera rig or photo
+  renderer, image term, albedo and its optimiser, ``fit_frame``);
+- :func:`fit_frames`: every frame after the last finished one; each frame's
+  ``control/``, ``limit/`` and ``state/`` files, then its ``metrics.csv`` row
+  (the commit: a frame is finished once its row is there).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mi_loop import io
+from mi_loop.app.sequence_sources import Sources, read_views
+from mi_loop.io import runs
+
+__all__ = ["FrameFitter", "SequenceRun", "fit_frames"]
+
+
+@dataclass(eq=False)
+class SequenceRun:
+    """What the frame loop carries from frame to frame.
+
+    Attributes
+    ----------
+    out : pathlib.Path
+        OUTDIR.
+    reader : mi_loop.app.inputs.FrameReader
+        The frames.
+    options : SequenceOptions
+        What the run uses (as ``sequence.json`` records them).
+    norm : mi_loop.fitting.static.Normalisation
+        World to unit box.
+    x : (n, 3) float64 NumPy array
+        Control points of the latest frame (unit box): where the next frame starts.
+    F : (m, 3) int NumPy array
+        Control faces.
+    rest : (n, 3) float64 NumPy array
+        The template (the second ARAP rest shape).
+    lr : float
+        Base step size.
+    camera_box : list ``[lo, hi]``
+        The unit-box box the camera rig frames.
+    sources : Sources
+        Photos and reference.
+    rows : list of mi_loop.io.runs.MetricsRow
+        ``metrics.csv``'s rows of the finished frames.
+    done : int
+        The last finished frame (-1: none).
+    pending : list of pathlib.Path
+        Files written before the first frame, printed with it.
+    albedo : (n, 3) float NumPy array or None
+        Per-control-vertex albedo (photos only).
+    lights : list of dict or None
+        The photos' emitters (photos only).
+    attachment : object or None
+        Each control vertex's limit point attached to the clean frame 0 (:func:`mi_loop.metrics.attach`), for
+        the drift; made at the first frame measured.
+    """
+
+    out: Path
+    reader: object
+    options: object
+    norm: object
+    x: np.ndarray
+    F: np.ndarray
+    rest: np.ndarray
+    lr: float
+    camera_box: list
+    sources: Sources
+    rows: list
+    done: int
+    pending: list
+    albedo: np.ndarray | None = None
+    lights: list | None = None
+    attachment: object = None
+
+
+class FrameFitter:
+    """Fit the frames of a run one at a time: the job's one caller of ``mi_loop.fitting`` and ``mi_loop.render``.
+
+    Built once per run: the limit operators of the control mesh, the fixed camera
+    rig of mesh frames without photos, or the photos' lighting and the albedo with
+    its optimiser (restored from ``saved`` on ``--resume``). Per frame
+    (:meth:`fit`): the image term (the frame's photos, or renders of its mesh),
+    then :func:`mi_loop.fitting.sequence.fit_frame`.
+
+    Parameters
+    ----------
+    run : SequenceRun
+        Sets ``run.lights`` and ``run.albedo`` (photos), and ``run.albedo`` after each frame.
+    saved : dict
+        The last finished frame's extra state arrays (:meth:`state_arrays`); empty for a fresh run.
+    log : mi_loop.app.progress.Reporter
+        Told the frames, control vertices and terms.
+    """
+
+    def __init__(self, run: SequenceRun, saved: dict, log):
+        from mi_loop.ad.operator import LimitOperator
+        from mi_loop.fitting.static import sample_parameters
+        from mi_loop.render import multiview
+        from mi_loop.subdiv.masks import vertex_samples
+
+        o, n = run.options, len(run.x)
+        self.run, self.photo, self.albedo_opt = run, None, None
+        photos = bool(run.sources.captures)
+        if photos and o.image:
+            self._albedo(saved)
+        fid, uv = sample_parameters(run.F, n, o.samples, o.seed)
+        self.op = LimitOperator(run.F, n, fid, uv, derivatives=True)   # normals: facing data only
+        self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
+        self.renderer = None
+        if o.image and not photos:         # cameras fixed for the whole run (resume included): the recorded box
+            self.renderer = multiview.Renderer(run.x, run.F, tuple(np.asarray(c) for c in run.camera_box), o.rig)
+        terms = (["IMLS", "coverage"] if o.cover > 0 else ["IMLS"]) if o.geometric else []
+        terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
+        if o.image:
+            terms += [f"photos ({len(run.sources.captures)} captures)" if photos
+                      else f"image ({o.mode}, {o.views} views)"]
+        log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}")
+
+    def _albedo(self, saved: dict) -> None:
+        """The photos' lighting, and the albedo (0.5 grey, or restored with its optimiser's state)."""
+        from mi_loop.fitting.largesteps import AdamUniform
+        from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
+
+        run = self.run
+        emitters = run.sources.emitters
+        run.lights = read_emitters(emitters) if emitters is not None else [dict(e) for e in DEFAULT_EMITTERS]
+        run.albedo = np.full((len(run.x), 3), 0.5)
+        if "albedo" in saved:
+            run.albedo = saved["albedo"]
+            self.albedo_opt = AdamUniform(run.albedo, lr=1.0, uniform=False)
+            self.albedo_opt.m, self.albedo_opt.v = saved["albedo_m"], saved["albedo_v"]
+            self.albedo_opt.t = int(saved["albedo_t"])
+
+    def _image_term(self, t: int, frame):
+        """Frame ``t``'s image term: its photos, renders of its mesh, or None."""
+        from mi_loop.fitting import sequence
+        from mi_loop.fitting.largesteps import AdamUniform
+        from mi_loop.mesh.geometry import vertex_normals
+        from mi_loop.render.photo import PhotoRenderer
+
+        run, o = self.run, self.run.options
+        if o.image and run.sources.captures:
+            views = read_views(run.sources.captures[t], t, frame)
+            if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
+                self.photo = PhotoRenderer(run.norm.inverse(run.x), run.F, run.albedo, views, run.lights,
+                                           level=o.level, spp=o.spp, deterministic=o.deterministic)
+            if self.albedo_opt is None:
+                self.albedo_opt = AdamUniform(run.albedo, lr=max(o.albedo_lr, 1e-12), uniform=False)
+            lr = o.albedo_lr * (1.0 if t == 0 else o.albedo_refine)
+            return sequence.PhotoTerm(self.photo, run.norm, run.albedo, lr, state=self.albedo_opt)
+        if self.renderer is not None and frame.mesh is not None:
+            renderer, Vt, Ft = self.renderer, run.norm.forward(frame.mesh[0]), frame.mesh[1]
+            return sequence.RenderedTerm(renderer, lambda: renderer.targets(Vt, Ft, vertex_normals(Vt, Ft)))
+        return None
+
+    def fit(self, t: int, frame, P, N, iterations: int, progress):
+        """Fit frame ``t`` from the latest frame's control points.
+
+        Parameters
+        ----------
+        t : int
+            The frame.
+        frame : mi_loop.app.inputs.FitFrame
+            The frame.
+        P, N : (k, 3) float NumPy arrays
+            Its points in the unit box and their unit normals (oriented).
+        iterations : int
+            Iterations of this frame.
+        progress : callable
+            ``progress(i, n)`` after each iteration.
+
+        Returns
+        -------
+        V : (n, 3) float64 NumPy array
+            The frame's control points (unit box).
+        info : dict
+            :func:`~mi_loop.fitting.sequence.fit_frame`'s (``iterations``, ``time_render``, ...).
+        """
+        from mi_loop.fitting import sequence
+
+        run = self.run
+        image = self._image_term(t, frame)
+        V, info = sequence.fit_frame(run.x, run.F, P, N, self.op, image, run.options, t, run.lr, progress=progress,
+                                     rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
+                                     complete=frame.mesh is not None)
+        if isinstance(image, sequence.PhotoTerm):
+            run.albedo = image.albedo
+        return V, info
+
+    def state_arrays(self) -> dict:
+        """Return what ``state/NNNN.npz`` keeps besides ``x``, ``F`` and ``rest``: the albedo and its optimiser.
+
+        Returns
+        -------
+        dict
+            Name -> NumPy array (empty without photos); :meth:`__init__` restores from it.
+        """
+        if self.run.albedo is None:
+            return {}
+        o = self.albedo_opt
+        return {"albedo": self.run.albedo, "albedo_m": o.m, "albedo_v": o.v, "albedo_t": np.array(o.t)}
+
+
+def fit_frames(run: SequenceRun, first, fitter: FrameFitter, log) -> list:
+    """Fit and write every frame after ``run.done``.
+
+    Parameters
+    ----------
+    run : SequenceRun
+        Updated as frames finish (``x``, ``rows``, ``albedo``).
+    first : mi_loop.app.inputs.FitFrame
+        Frame 0, read already.
+    fitter : FrameFitter
+        The run's fitter.
+    log : mi_loop.app.progress.Reporter
+        Progress bar, a line per frame, the written paths.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Every written path, in order.
+    """
+    o = run.options
+    paths, todo = [], list(range(run.done + 1, len(run.reader)))
+    steps = [o.first_iterations if t == 0 else o.iterations for t in todo]
+    with log.bar("fit-sequence") as update:
+        for k, t in enumerate(todo):
+            t0 = time.perf_counter()
+            frame = first if t == 0 else run.reader(t)
+            P, N = run.norm.forward(frame.P), frame.N
+            if run.reader.normals_estimated and frame.mesh is None:
+                N = _orient(run, P, N)
+
+            def progress(i, n, k=k, t=t):
+                update(sum(steps[:k]) + i, sum(steps), f"frame {t + 1}/{len(run.reader)}")
+
+            V, info = fitter.fit(t, frame, P, N, steps[k], progress)
+            paths += _write_frame(run, t, frame, N, V, info, fitter.state_arrays(), t0, log)
+            run.x = V
+    return paths
+
+
+def _orient(run: SequenceRun, P, N):
+    """Turn estimated normals (unit box points ``P``) to agree with the current fit's nearest limit normal."""
+    from scipy.spatial import cKDTree
+
+    from mi_loop.subdiv.masks import limit_mesh
+
+    Vl, _, Nl = limit_mesh(run.x, run.F, level=1)
+    _, i = cKDTree(Vl).query(P, workers=-1)
+    return np.where((np.sum(N * Nl[i], axis=1) < 0)[:, None], -N, N)
+
+
+def _frame_metrics(run: SequenceRun, t: int, V, frame, N):
+    """``(distances, flipped %, drift or None, limit mesh)`` of frame ``t``'s fit ``V`` (unit box)."""
+    from mi_loop.metrics import attach, drift, flipped_fraction, two_sided
+    from mi_loop.subdiv.masks import limit_mesh, limit_positions
+
+    V_world = run.norm.inverse(V)
+    limit = limit_mesh(V_world, run.F, level=2)
+    clean = None
+    if run.sources.reference is not None:
+        ref = run.sources.reference[t]()
+        clean = (ref.vertices, ref.faces)
+    mesh = clean if clean is not None else frame.mesh
+    if mesh is not None:
+        m = two_sided(limit[0], limit[1], mesh[0], mesh[1], n_samples=30_000)
+        flipped = flipped_fraction(limit[0], limit[1], mesh[0], mesh[1])
+    else:
+        m = two_sided(limit[0], limit[1], frame.P, n_samples=30_000)
+        flipped = flipped_fraction(limit[0], limit[1], frame.P, N_target=N)
+    d = None
+    if clean is not None:
+        L = limit_positions(V_world, run.F)
+        if run.attachment is None:
+            first = runs.state_path(run.out, 0)
+            if t != 0 and not first.is_file():
+                return m, 100 * flipped, None, limit
+            L0 = L if t == 0 else limit_positions(run.norm.inverse(runs.read_state(first).x), run.F)
+            ref0 = run.sources.reference[0]()
+            run.attachment = attach(L0, ref0.vertices, ref0.faces)
+        d = drift(L, run.attachment, clean[0])
+    return m, 100 * flipped, d, limit
+
+
+def _write_frame(run: SequenceRun, t: int, frame, N, V, info: dict, arrays: dict, t0: float, log) -> list:
+    """Write frame ``t``'s limit, control and state files and its ``metrics.csv`` row (the commit); print them."""
+    from mi_loop.subdiv.masks import limit_colors
+
+    m, flipped, d, limit = _frame_metrics(run, t, V, frame, N if frame.mesh is None else None)
+    seconds = time.perf_counter() - t0
+    row = runs.MetricsRow(t, frame.name, float(m["mean"]), float(m["rms"]), float(m["hausdorff"]), float(flipped),
+                          None if d is None else float(d["mean"]), None if d is None else float(d["p95"]), seconds,
+                          float(info["time_render"]), int(info["iterations"]))
+    run.rows.append(row.rounded())                 # as metrics.csv reads back: a resumed run holds the same rows
+    colors = run.albedo
+    paths = [io.write_ply(run.out / "control" / f"{t:04d}.ply", run.norm.inverse(V), run.F, colors=colors),
+             io.write_ply(run.out / "limit" / f"{t:04d}.ply", *limit,
+                          colors=None if colors is None else limit_colors(colors, run.F, 2)),
+             runs.write_state(runs.state_path(run.out, t), runs.FrameState(V, run.F, run.rest, arrays))]
+    runs.write_metrics(run.out / "metrics.csv", run.rows)
+    paths += run.pending
+    run.pending = []
+    log.wrote(*paths)
+    extra = f", drift {d['mean']:.2e}" if d is not None else ""
+    if info.get("noise") is not None:   # how much the images counted where the data saw the surface
+        extra += f", data noise {info['noise']:.1e}, image weight there {info['seen_weight']:.2g}"
+    log.say(f"frame {t + 1}/{len(run.reader)} {frame.name}: mean {m['mean']:.2e} RMS {m['rms']:.2e}, "
+            f"flipped {flipped:.2f} %{extra} ({seconds:.1f} s, render {info['time_render']:.1f} s)")
+    return paths
