@@ -51,28 +51,26 @@ FRAMES = [0, 3, 6, 9, 12]
 def run(frames, F_data, options, perturb=None, seed=0):
     """Fit the frames; return the normalised control points after every frame and the cage faces."""
     from mi_loop.ad.operator import LimitOperator
-    from mi_loop.fitting.sequence import fit_frame
+    from mi_loop.fitting.sequence import Rig, fit_frame
     from mi_loop.fitting.static import Normalisation, sample_parameters
     from mi_loop.fitting.template import mesh_template
-    from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
+    from mi_loop.mesh.geometry import mean_edge_length
     from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.render.multiview import Renderer
 
     norm = Normalisation.of(frames[0])
     x, F, _ = mesh_template(norm.forward(frames[0]), F_data, 200)
     lr = 0.02 * mean_edge_length(x, F)
     op = LimitOperator(F, len(x), *sample_parameters(F, len(x), "level1"), derivatives=False)
-    renderer = None
+    rig = None
     if options.image:
         lo, hi = x.min(0), x.max(0)
         pad = 0.15 * (hi - lo).max()
-        renderer = Renderer(x, F, (lo - pad, hi + pad), options.rig)
+        rig = Rig(options, (lo - pad, hi + pad))
     fits = []
     for t, X in enumerate(frames):
         P, N, _ = sample_surface(X, F_data, 20_000, seed=seed + t)
-        Vt = norm.forward(X)
-        targets = renderer.targets(Vt, F_data, vertex_normals(Vt, F_data)) if renderer else None
-        x, _ = fit_frame(x, F, norm.forward(P), N, op, targets, renderer, options, t, lr)
+        images = rig.images(x, F, (norm.forward(X), F_data), t) if rig is not None else None
+        x, _ = fit_frame(x, F, norm.forward(P), N, op, images, options, t, lr)
         if t == 0 and perturb is not None:
             x = x + perturb
         fits.append(x.copy())
@@ -81,8 +79,6 @@ def run(frames, F_data, options, perturb=None, seed=0):
 
 def _experiments(args) -> None:
     """Patch the package for the ``--refresh-once`` and ``--adam-epsilon`` experiments (this process only)."""
-    import drjit as dr
-
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
 
@@ -94,12 +90,14 @@ def _experiments(args) -> None:
                     _update(self, Q)
             cls.update = once
     if args.adam_epsilon is not None:
-        adam_init = dr.opt.Adam.__init__
+        from mi_loop.fitting.optimisers import Adam
+
+        adam_init = Adam.__init__
 
         def init(self, *a, _init=adam_init, **k):
             k.setdefault("epsilon", args.adam_epsilon)
             _init(self, *a, **k)
-        dr.opt.Adam.__init__ = init
+        Adam.__init__ = init
 
 
 def main(argv=None) -> int:

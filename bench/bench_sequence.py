@@ -23,11 +23,6 @@ Two parts, each printing Markdown tables:
     Share of each frame's limit surface (of finished ``fit`` runs) whose
     normal points against the nearest target face's: folds where the surface
     turned over on itself.
-``probe``
-    What the image term adds once the geometry has converged: at the last
-    frame of an IMLS-only run, the agreement of image gradients between render
-    seeds, and the distance after 30 joint iterations, for several image
-    resolutions / spp / modes (see :func:`probe_part`).
 
 Usage::
 
@@ -37,7 +32,6 @@ Usage::
         --extra="--beta 4"                                               # a settings sweep point
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py cost
     PYTHONPATH=. .venv/bin/python bench/bench_sequence.py folds --tag _defaults
-    PYTHONPATH=. .venv/bin/python bench/bench_sequence.py probe --seq spot   # after fit --tag _defaults
 
 Runs go to ``bench/results/sequence/`` (not tracked). Every table repeats the
 load average: other jobs on the machine inflate timings.
@@ -201,12 +195,10 @@ def cost_part(args):
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
-    from mi_loop.fitting.sequence import SequenceOptions
+    from mi_loop.fitting.sequence import Rig, SequenceOptions
     from mi_loop.fitting.static import Normalisation, sample_parameters
     from mi_loop.fitting.template import mesh_template
-    from mi_loop.mesh.geometry import vertex_normals
     from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.render.multiview import Renderer
     from mi_loop.render.variant import set_variant
 
     set_variant("llvm_ad_rgb")
@@ -223,9 +215,9 @@ def cost_part(args):
     arap = ARAP(x0, F)
     lo, hi = x0.min(0), x0.max(0)
     pad = 0.15 * (hi - lo).max()
-    renderer = Renderer(x0, F, (lo - pad, hi + pad), options.rig)
+    rig = Rig(options, (lo - pad, hi + pad))
     Vn = norm.forward(V)
-    targets = renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
+    renderer = rig.images(x0, F, (Vn, F_t), 0).renderer()
     alpha = dr.opaque(mi.Float, options.alpha / len(x0))
     base = x0.ravel().astype(np.float32)
     Q = np.array(op.positions(mi.Float(base)), dtype=np.float64).T
@@ -244,7 +236,7 @@ def cost_part(args):
     def image(i):
         x = mi.Float(base + 1e-4 * i)
         dr.enable_grad(x)
-        renderer.backward(x, [i % options.views], targets, seed=i)   # render + its reverse pass
+        renderer.backward(x, None, [i % options.views], seed=i)     # render + its reverse pass
         dr.eval(dr.grad(x))
 
     def timed(f, n):
@@ -267,7 +259,7 @@ def cost_part(args):
     g = timed(geometric, args.runs)
     u = timed(refresh, args.runs)
     r = timed(image, args.runs)
-    once = per_frame_costs(V, F_t, x0, F, norm, renderer)
+    once = per_frame_costs(V, F_t, x0, F, norm, rig)
     print(f"\nCost per iteration, spot template {len(x0)} control vertices ({len(F)} faces, "
           f"{len(fid)} limit samples), "
           f"render {options.resolution}^2 at {options.spp} spp, level {options.level}, one view [{load()}]\n")
@@ -287,11 +279,10 @@ def cost_part(args):
         print(f"| {label} | {s:.2f} |")
 
 
-def per_frame_costs(V, F_t, x0, F, norm, renderer):
+def per_frame_costs(V, F_t, x0, F, norm, rig):
     """Seconds of the per-frame steps of ``mi-loop fit-sequence`` that are not iterations."""
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
-    from mi_loop.mesh.geometry import vertex_normals
     from mi_loop.mesh.sampling import sample_surface
     from mi_loop.metrics import two_sided
     from mi_loop.subdiv.masks import limit_mesh
@@ -309,8 +300,8 @@ def per_frame_costs(V, F_t, x0, F, norm, renderer):
     Coverage(Pn, N, tree=IMLS(Pn, N).tree)
     lap("IMLS + coverage set-up (20k points)")
     Vn = norm.forward(V)
-    renderer.targets(Vn, F_t, vertex_normals(Vn, F_t))
-    lap(f"target renders ({len(renderer.views)} views, {renderer.options.target_spp} spp)")
+    rig.images(x0, F, (Vn, F_t), 1).renderer()
+    lap(f"target renders ({len(rig.cameras)} views, {rig.options.target_spp} spp)")
     limit = limit_mesh(norm.inverse(x0), F, level=2)
     lap("limit mesh for output (level 2, P + du + dv rows, SciPy)")
     two_sided(limit[0], limit[1], V, F_t, n_samples=30_000)        # as fit-sequence's per-frame metrics
@@ -348,119 +339,6 @@ def folds_part(args):
                   f"{pct[worst]:.2f} ({worst}) |", flush=True)
 
 
-# -- probe: what the image term can add to a converged geometric fit ----------------
-PROBE_SETTINGS = [  # (resolution, spp, mode, tessellation level)
-    (96, 4, "shading", 1), (96, 64, "shading", 1), (96, 64, "silhouette", 3), (256, 16, "silhouette", 3)]
-
-
-def probe_part(args):
-    """Image gradients at the IMLS-only fit of the last frame: seed-to-seed agreement, effect of steps.
-
-    For each setting: (a) the cosine between image-loss gradients (one view)
-    from different render seeds, averaged over pairs of 4 seeds and 2 views;
-    1 means noise-free, 0 pure noise. (b) 30 joint iterations (IMLS +
-    coverage + ARAP + beta * image, 2 views each, step 0.05 of the run's
-    geometric step, as the joint phase of ``fit-sequence``) starting from the
-    converged IMLS-only fit, and the two-sided distance to the clean frame
-    before and after; a ``beta 0`` row is the same continuation without images.
-    Needs ``fit --configs imls --tag TAG`` to have run.
-    """
-    import json
-
-    import drjit as dr
-    import mitsuba as mi
-
-    from mi_loop import io
-    from mi_loop.ad.operator import LimitOperator
-    from mi_loop.fitting.sequence import SequenceOptions
-    from mi_loop.fitting.static import Normalisation, sample_parameters
-    from mi_loop.mesh.geometry import vertex_normals
-    from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.metrics import two_sided
-    from mi_loop.render.multiview import Renderer
-    from mi_loop.render.variant import set_variant
-    from mi_loop.subdiv.masks import limit_mesh
-
-    set_variant("llvm_ad_rgb")
-    run = RESULTS / args.seq / f"imls{args.tag}"
-    state = json.loads((run / "sequence.json").read_text())
-    norm = Normalisation(np.asarray(state["centre"]), state["scale"])
-    box = tuple(np.asarray(c) for c in state["camera_box"])
-    data = np.load(SEQ / SEQUENCES[args.seq][0])
-    t = len(data["vertices"]) - 1
-    Vt, Ft = np.asarray(data["vertices"][t], np.float64), np.asarray(data["faces"])
-    Vc, F = io.read_mesh(run / "control" / f"{t:04d}.ply")
-    x0 = norm.forward(Vc)
-    Vn = norm.forward(Vt)
-    P, N, _ = sample_surface(Vt, Ft, 20_000, seed=5)
-    op = LimitOperator(F, len(x0), *sample_parameters(F, len(x0), "level1"), derivatives=False)
-
-    def distance(x):
-        limit = limit_mesh(norm.inverse(x), F, level=2)
-        d = two_sided(limit[0], limit[1], Vt, Ft, n_samples=30_000)
-        return d["mean"], d["rms"]
-
-    print(f"\n{args.seq}, frame {t}, start: IMLS-only fit {run.name} [{load()}]\n")
-    print("| image setting | gradient cosine between seeds | beta | mean after 30 joint its | RMS after | s |")
-    print("|---|---|---|---|---|---|")
-    m0, r0 = distance(x0)
-    print(f"| (start) | | | {m0:.6f} | {r0:.6f} | |")
-    for res, spp, mode, level in PROBE_SETTINGS:
-        options = SequenceOptions(resolution=res, spp=spp, mode=mode, level=level, target_spp=128)
-        renderer = Renderer(x0, F, box, options.rig)
-        targets = renderer.targets(Vn, Ft, vertex_normals(Vn, Ft))
-
-        def gradient(seed, k, renderer=renderer, targets=targets):
-            x = mi.Float(x0.ravel().astype(np.float32))
-            dr.enable_grad(x)
-            renderer.backward(x, [k], targets, seed=seed)
-            return np.array(dr.grad(x), dtype=np.float64)
-
-        cosines = []
-        for k in (1, 7):
-            G = [gradient(seed, k) for seed in range(4)]
-            cosines += [G[i] @ G[j] / (np.linalg.norm(G[i]) * np.linalg.norm(G[j]))
-                        for i in range(4) for j in range(i + 1, 4)]
-        for beta in ([0.0, 1.0] if (res, spp) == (96, 4) else [1.0]):
-            t0 = time.perf_counter()
-            m, r = distance(joint_steps(x0, F, norm.forward(P), N, op, renderer, targets, beta,
-                                        0.05 * state["lr"], 30, options))
-            label = f"{res}^2, {spp} spp, {mode}, level {level}"
-            print(f"| {label} | {np.mean(cosines):.2f} | {beta:g} | {m:.6f} | {r:.6f} | "
-                  f"{time.perf_counter() - t0:.0f} |", flush=True)
-
-
-def joint_steps(x0, F, P, N, op, renderer, targets, beta, lr, n, options):
-    """``n`` Adam steps on IMLS + coverage + ARAP (+ beta * image over 2 random views)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    from mi_loop.energies.arap import ARAP
-    from mi_loop.energies.coverage import Coverage
-    from mi_loop.energies.imls import IMLS
-
-    imls, arap = IMLS(P, N), ARAP(x0, F)
-    cover = Coverage(P, N, tree=imls.tree)
-    opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
-    rng = np.random.default_rng(0)
-    for it in range(n):
-        x = opt["x"]
-        Q = op.positions(x)
-        if it % 10 == 0:
-            Qn = np.array(Q, dtype=np.float64).T
-            imls.update(Qn)
-            cover.update(Qn)
-        R = arap.rotations(np.array(x, dtype=np.float64).reshape(-1, 3))
-        E = (imls.energy(Q, reduce="mean") + options.cover * cover.energy(Q)
-             + options.alpha / len(x0) * arap.energy(x, R))
-        dr.backward(E)
-        if beta > 0:
-            views = rng.choice(len(renderer.views), 2, replace=False)
-            renderer.backward(x, views, targets, seed=it, weight=beta)
-        opt.step()
-    return np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="part", required=True)
@@ -476,12 +354,9 @@ def main():
     folds.add_argument("--seq", nargs="+", choices=sorted(SEQUENCES), default=["spot", "fox"])
     folds.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=list(CONFIGS))
     folds.add_argument("--tag", default="_defaults", help="suffix of the runs' output directories")
-    probe = sub.add_parser("probe")
-    probe.add_argument("--seq", choices=sorted(SEQUENCES), default="spot")
-    probe.add_argument("--tag", default="_defaults", help="suffix of the IMLS-only run to start from")
     args = parser.parse_args()
     print(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')}, nproc {os.cpu_count()}, {load()}")
-    {"fit": fit_part, "cost": cost_part, "folds": folds_part, "probe": probe_part}[args.part](args)
+    {"fit": fit_part, "cost": cost_part, "folds": folds_part}[args.part](args)
 
 
 if __name__ == "__main__":

@@ -104,7 +104,6 @@ class FrameFitter:
     def __init__(self, run: SequenceRun, saved: dict, log):
         from mi_loop.ad.operator import LimitOperator
         from mi_loop.fitting.static import sample_parameters
-        from mi_loop.render import multiview
         from mi_loop.subdiv.masks import vertex_samples
 
         o, n = run.options, len(run.x)
@@ -115,9 +114,11 @@ class FrameFitter:
         fid, uv = sample_parameters(run.F, n, o.samples, o.seed)
         self.op = LimitOperator(run.F, n, fid, uv, derivatives=True)   # normals: facing data only
         self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
-        self.renderer = None
+        self.rig = None
         if o.image and not photos:         # cameras fixed for the whole run (resume included): the recorded box
-            self.renderer = multiview.Renderer(run.x, run.F, tuple(np.asarray(c) for c in run.camera_box), o.rig)
+            from mi_loop.fitting.sequence import Rig
+
+            self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
         terms = (["IMLS", "coverage"] if o.cover > 0 else ["IMLS"]) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
         if o.image:
@@ -127,39 +128,37 @@ class FrameFitter:
 
     def _albedo(self, saved: dict) -> None:
         """The photos' lighting, and the albedo (0.5 grey, or restored with its optimiser's state)."""
-        from mi_loop.fitting.largesteps import AdamUniform
+        from mi_loop.fitting.optimisers import Adam
         from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
 
         run = self.run
         emitters = run.sources.emitters
         run.lights = read_emitters(emitters) if emitters is not None else [dict(e) for e in DEFAULT_EMITTERS]
         run.albedo = np.full((len(run.x), 3), 0.5)
+        self.albedo_opt = Adam()
         if "albedo" in saved:
             run.albedo = saved["albedo"]
-            self.albedo_opt = AdamUniform(run.albedo, lr=1.0, uniform=False)
-            self.albedo_opt.m, self.albedo_opt.v = saved["albedo_m"], saved["albedo_v"]
-            self.albedo_opt.t = int(saved["albedo_t"])
+            state = {k: saved[f"albedo_{k}"] for k in ("t", "m", "v") if f"albedo_{k}" in saved}
+            self.albedo_opt.load_state_dict(state)
 
-    def _image_term(self, t: int, frame):
-        """Frame ``t``'s image term: its photos, renders of its mesh, or None."""
+    def _images(self, t: int, frame):
+        """Frame ``t``'s :class:`~mi_loop.fitting.sequence.FrameImages`: its photos, renders of its mesh, or None."""
         from mi_loop.fitting import sequence
-        from mi_loop.fitting.largesteps import AdamUniform
-        from mi_loop.mesh.geometry import vertex_normals
-        from mi_loop.render.photo import PhotoRenderer
 
         run, o = self.run, self.run.options
         if o.image and run.sources.captures:
+            from mi_loop.render.images import ImageRenderer
+
             views = read_views(run.sources.captures[t], t, frame)
             if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
-                self.photo = PhotoRenderer(run.norm.inverse(run.x), run.F, run.albedo, views, run.lights,
+                self.photo = ImageRenderer(run.norm.inverse(run.x), run.F, views, run.lights, albedo=run.albedo,
                                            level=o.level, spp=o.spp, deterministic=o.deterministic)
-            if self.albedo_opt is None:
-                self.albedo_opt = AdamUniform(run.albedo, lr=max(o.albedo_lr, 1e-12), uniform=False)
             lr = o.albedo_lr * (1.0 if t == 0 else o.albedo_refine)
-            return sequence.PhotoTerm(self.photo, run.norm, run.albedo, lr, state=self.albedo_opt)
-        if self.renderer is not None and frame.mesh is not None:
-            renderer, Vt, Ft = self.renderer, run.norm.forward(frame.mesh[0]), frame.mesh[1]
-            return sequence.RenderedTerm(renderer, lambda: renderer.targets(Vt, Ft, vertex_normals(Vt, Ft)))
+            pixel = sequence.pixel_size(self.photo.cameras, run.norm.centre, run.norm.scale)
+            return sequence.FrameImages(self.photo, run.albedo, lr, self.albedo_opt,
+                                        (run.norm.scale, run.norm.centre), pixel)
+        if self.rig is not None and frame.mesh is not None:
+            return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
 
     def fit(self, t: int, frame, P, N, iterations: int, progress):
@@ -188,12 +187,12 @@ class FrameFitter:
         from mi_loop.fitting import sequence
 
         run = self.run
-        image = self._image_term(t, frame)
-        V, info = sequence.fit_frame(run.x, run.F, P, N, self.op, image, run.options, t, run.lr, progress=progress,
+        images = self._images(t, frame)
+        V, info = sequence.fit_frame(run.x, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
                                      complete=frame.mesh is not None)
-        if isinstance(image, sequence.PhotoTerm):
-            run.albedo = image.albedo
+        if run.sources.captures and info["albedo"] is not None:
+            run.albedo = info["albedo"]
         return V, info
 
     def state_arrays(self) -> dict:
@@ -206,8 +205,11 @@ class FrameFitter:
         """
         if self.run.albedo is None:
             return {}
-        o = self.albedo_opt
-        return {"albedo": self.run.albedo, "albedo_m": o.m, "albedo_v": o.v, "albedo_t": np.array(o.t)}
+        state = self.albedo_opt.state_dict()
+        extra = {"albedo": self.run.albedo, "albedo_t": np.array(state["t"])}
+        if "m" in state:
+            extra |= {"albedo_m": state["m"], "albedo_v": state["v"]}
+        return extra
 
 
 def fit_frames(run: SequenceRun, first, fitter: FrameFitter, log) -> list:

@@ -13,13 +13,17 @@ cannot drift into folds over a long sequence), a barrier on limit normals
 that turned by more than 60 degrees since the previous frame's fit (a fold
 in the making), and the image term: mean L1
 between ``direct_projective`` renders of the limit surface (``loop_subdiv``,
-exact limit normals) and the frame's photos (:class:`PhotoTerm`, with a
-per-control-vertex albedo) or renders of a mesh frame (:class:`RenderedTerm`).
+exact limit normals) and the frame's photos (with a per-control-vertex albedo,
+estimated on the first frame and refined slowly after) or renders of a mesh
+frame from a rig of cameras (:class:`FrameImages`).
 
-The image term acts over the whole frame. Its gradient is refreshed every
-``options.image_every`` iterations (a render and its reverse pass cost ten
-times a geometric iteration) and added to every step's geometric gradient in
-between. It is balanced per control vertex:
+Each frame is one run of the optimisation loop (:func:`mi_loop.fitting.loop.optimise`)
+with the terms of :mod:`mi_loop.fitting.terms`. The image term
+(:class:`~mi_loop.fitting.terms.ImageTerm`) acts over the whole frame. Its
+gradient is refreshed every ``options.image_every`` iterations (a render and
+its reverse pass cost ten times a geometric iteration) and added to every
+step's geometric gradient in between. It is balanced per control vertex
+(:class:`ImageBalance`), on the device:
 
 - ``k``, fixed at the frame's first refresh, scales the image gradient to the
   RMS of the geometric gradient over the vertices the data supports, so that
@@ -49,18 +53,17 @@ pulled onto the seen side. No file I/O here.
 """
 from __future__ import annotations
 
-import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from mi_loop.errors import FitError
 from mi_loop.fitting.options import SequenceOptions
 
-__all__ = ["MIN_IMAGE_WEIGHT", "PhotoTerm", "RenderedTerm", "SequenceOptions", "fit_frame", "support"]
+__all__ = ["MIN_IMAGE_WEIGHT", "FrameImages", "ImageBalance", "Rig", "SequenceOptions", "fit_frame", "pixel_size",
+           "support"]
 
 #: A mesh frame's renders are skipped when their weight ``beta w`` (relative to the geometric gradient) is below.
 MIN_IMAGE_WEIGHT = 0.01
-
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
     """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
@@ -103,112 +106,211 @@ def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarr
     return np.clip((2.0 * radius - d) / radius, 0.0, 1.0)
 
 
-class RenderedTerm:
-    """Image term against renders of a mesh frame (:class:`~mi_loop.render.multiview.Renderer`).
+def pixel_size(cameras, centre, scale: float = 1.0) -> float:
+    """Median over the cameras of one pixel's width at ``centre``, divided by ``scale`` (into the fit's units).
 
     Parameters
     ----------
-    renderer : Renderer
-        The sequence's rig (fixed cameras, unit-box units).
-    targets : list of mi.TensorXf, or a callable returning one
-        The frame's target renders; a callable is called on the first
-        gradient (a frame whose renders are skipped never renders them).
+    cameras : sequence of mi_loop.io.capture.Camera
+    centre : (3,) float array-like
+        The subject's centre, in the cameras' units.
+    scale : float
+        Size of one fit unit in the cameras' units (the unit box's ``scale``).
+
+    Returns
+    -------
+    float
+        ``median_k |c_k - centre| / fx_k / scale``.
     """
-
-    def __init__(self, renderer, targets):
-        self.renderer, self._targets = renderer, targets
-        self.n_views = len(renderer.views)
-
-    @property
-    def targets(self) -> list:
-        """The target renders (rendered on first use when given as a callable)."""
-        if callable(self._targets):
-            self._targets = self._targets()
-        return self._targets
-
-    def pixel_size(self) -> float:
-        """Width of one pixel at the subject's centre, in the fit's units (the rig's: unit box)."""
-        from mi_loop.render.scene import look_at_distance
-
-        lo, hi = (np.asarray(b, dtype=np.float64) for b in self.renderer.bbox)
-        fov = 35.0                      # the rig's field of view (scene_dict's default)
-        d = look_at_distance(0.5 * float(np.linalg.norm(hi - lo)), fov)
-        return 2.0 * d * float(np.tan(np.radians(fov) / 2)) / self.renderer.options.resolution
-
-    def gradient(self, V, view_ids, seed: int):
-        """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box) over ``view_ids``."""
-        import drjit as dr
-        import mitsuba as mi
-
-        x = mi.Float(np.asarray(V, dtype=np.float32).ravel())
-        dr.enable_grad(x)
-        loss = self.renderer.backward(x, view_ids, self.targets, seed=seed)
-        return np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3), loss
+    centre = np.asarray(centre, dtype=np.float64)
+    widths = [np.linalg.norm(c.c2w[:3, 3] - centre) / c.fx for c in cameras]
+    return float(np.median(widths)) / float(scale)
 
 
-class PhotoTerm:
-    """Image term against a frame's photos (:class:`~mi_loop.render.photo.PhotoRenderer`), with albedo.
+@dataclass
+class FrameImages:
+    """What a frame's image term renders and with what: the renderer, the albedo, the units.
 
-    The renderer works in the capture's units (its cameras and emitters); the
-    fit in the unit box, so the control points are mapped by ``norm`` and the
-    gradient back (``dL/dV = scale dL/dX``).
-
-    Parameters
+    Attributes
     ----------
-    renderer : PhotoRenderer
-        Scene of the frame's cameras and the capture's emitters.
-    norm : Normalisation
-        Unit box to capture units.
+    renderer : mi_loop.render.images.ImageRenderer or callable
+        The frame's targets (photos, or renders of a mesh frame) and cameras;
+        or a function returning it, called only if the frame renders at all
+        (a mesh frame whose renders would weigh too little never renders its targets).
     albedo : (n, 3) float NumPy array
-        Per-control-vertex linear albedo (updated in place of :attr:`albedo`).
+        Per-control-vertex linear albedo at the start of the frame.
     albedo_lr : float
-        Adam step of the albedo (0: kept).
-    state : AdamUniform, optional
-        The albedo optimiser carried over from the previous frame.
+        Step of the albedo in this frame (0: kept as it is).
+    albedo_optimiser : Adam or None
+        The albedo's optimiser, carried from frame to frame (None: a new one).
+    to_world : (float, (3,) array) or None
+        ``(scale, centre)`` from the fit's unit box to the renderer's units
+        (photos in the capture's units); None: the same units (the rig).
+    pixel : float
+        Width of one pixel at the subject, in the fit's units.
     """
 
-    def __init__(self, renderer, norm, albedo, albedo_lr: float, state=None):
-        from mi_loop.fitting.largesteps import AdamUniform
+    renderer: object
+    albedo: np.ndarray
+    albedo_lr: float = 0.0
+    albedo_optimiser: object = None
+    to_world: tuple | None = None
+    pixel: float = 1.0
 
-        self.renderer, self.norm = renderer, norm
-        self.n_views = len(renderer.views)
-        self.albedo = np.asarray(albedo, dtype=np.float64).copy()
-        self.albedo_lr = float(albedo_lr)
-        self.opt = state if state is not None else AdamUniform(self.albedo, lr=max(self.albedo_lr, 1e-12),
-                                                               uniform=False)
-        self.opt.x, self.opt.lr = self.albedo.copy(), max(self.albedo_lr, 1e-12)
 
-    def pixel_size(self) -> float:
-        """Median over the cameras of one pixel's width at the subject's centre, in the fit's units (unit box)."""
-        centre = np.asarray(self.norm.inverse(np.zeros(3)), dtype=np.float64)
-        widths = [np.linalg.norm(v.camera.c2w[:3, 3] - centre) / v.camera.fx for v in self.renderer.views]
-        return float(np.median(widths)) / self.norm.scale
+class Rig:
+    """The camera rig of mesh frames without photos: cameras around a fixed box, its lights, one renderer.
 
-    def gradient(self, V, view_ids, seed: int):
-        """``(dL/dV (n, 3), L)`` at control points ``V`` (unit box); steps the albedo."""
+    Each frame's mesh is rendered from the rig (the targets) and the limit
+    surface against them, grey diffuse (``options.mode`` 'shading') or black
+    (``'silhouette'``), by one :class:`~mi_loop.render.images.ImageRenderer`
+    kept for the whole sequence.
+
+    Parameters
+    ----------
+    options : SequenceOptions
+        ``views``, ``resolution``, ``mode``, ``level``, ``spp``, ``target_spp``,
+        ``loss``, ``deterministic``, ``seed``.
+    box : ((3,), (3,)) float array-like
+        The box the cameras frame, in the fit's units (fixed for the sequence).
+    """
+
+    def __init__(self, options: SequenceOptions, box):
+        from mi_loop.render.cameras import rig_cameras
+        from mi_loop.render.scene import rig_emitters
+
+        lo, hi = (np.asarray(c, dtype=np.float64) for c in box)
+        self.options, self.centre = options, 0.5 * (lo + hi)
+        self.cameras = rig_cameras(options.views, (lo, hi), options.resolution)
+        self.emitters = rig_emitters((lo, hi), options.mode)
+        self.grey = 0.6 if options.mode == "shading" else 0.0
+        self.renderer = None
+
+    def images(self, x0, F, mesh, frame: int) -> FrameImages:
+        """The :class:`FrameImages` of a frame: renders of its ``mesh`` ``(V, F)`` (fit's units), made when used.
+
+        Parameters
+        ----------
+        x0 : (n, 3) float NumPy array
+            Control points the renderer is first built with.
+        F : (m, 3) int NumPy array
+            Control faces.
+        mesh : ((k, 3), (t, 3)) NumPy arrays
+            The frame's mesh.
+        frame : int
+            The frame (seeds its target renders).
+        """
+        return FrameImages(lambda: self._renderer(x0, F, mesh, frame), np.full((len(x0), 3), self.grey),
+                           pixel=pixel_size(self.cameras, self.centre))
+
+    def _renderer(self, x0, F, mesh, frame):
+        from mi_loop.fitting.loop import Seeds
+        from mi_loop.mesh.geometry import vertex_normals
+        from mi_loop.render.captures import render_targets
+        from mi_loop.render.images import ImageRenderer
+
+        o = self.options
+        Vt, Ft = mesh
+        targets = render_targets(Vt, Ft, self.cameras, self.emitters, albedo=np.full((len(Vt), 3), self.grey),
+                                 normals=vertex_normals(Vt, Ft), spp=o.target_spp,
+                                 seed=Seeds(o.seed).child(frame).integer(2))
+        if self.renderer is None or not self.renderer.set_photos(targets):
+            self.renderer = ImageRenderer(x0, F, targets, self.emitters, albedo=np.full((len(x0), 3), self.grey),
+                                          level=o.level, spp=o.spp, loss=o.loss, deterministic=o.deterministic)
+        return self.renderer
+
+
+class ImageBalance:
+    """Smoothing, per-vertex weights and scale of a frame's image gradient (module docstring).
+
+    Parameters
+    ----------
+    F : (m, 3) int NumPy array
+        Control faces.
+    n : int
+        Control vertices.
+    options : SequenceOptions
+        ``beta``, ``lam``, ``seen``, ``geometric``.
+    seen_weight : float
+        ``w``: the image weight where the data supports the surface (relative).
+    imls : IMLS or None
+        The frame's data (None: images only, the same weight everywhere).
+    vertex_op : LimitOperator or None
+        One sample per control vertex, with derivatives (the support is measured at its limit points).
+    radius : float or None
+        Full support within it; None with ``complete``.
+    complete : bool
+        The data cover the whole surface: every vertex counts as supported.
+    """
+
+    def __init__(self, F, n: int, options: SequenceOptions, seen_weight: float, imls=None, vertex_op=None,
+                 radius=None, complete: bool = False):
+        from mi_loop.ad.smoothing import SmoothParameterisation
+
+        self.options, self.w, self.n = options, float(seen_weight), int(n)
+        self.imls, self.vertex_op, self.radius, self.complete = imls, vertex_op, radius, bool(complete)
+        self.smooth = SmoothParameterisation(F, n, options.lam) if options.lam > 0 else None
+        self.k, self.seen, self._weights, self._s = None, 1.0, None, None
+
+    def refresh(self, state) -> None:
+        """The weights follow the surface: recomputed at the next image gradient."""
+        self._weights = None
+
+    def _update(self, state) -> None:
         import drjit as dr
         import mitsuba as mi
 
-        x = mi.Float(np.asarray(self.norm.inverse(V), dtype=np.float32).ravel())
-        a = mi.Float(self.albedo.astype(np.float32).ravel())
-        dr.enable_grad(x, a)
-        losses = self.renderer.backward(x, a, view_ids, seed=seed)
-        g = np.asarray(dr.grad(x), dtype=np.float64).reshape(-1, 3) * self.norm.scale
-        if self.albedo_lr > 0:
-            g_a = np.asarray(dr.grad(a), dtype=np.float64).reshape(-1, 3)
-            self.albedo = np.clip(self.opt.step(g_a), 0.0, 1.0)
-            self.opt.x = self.albedo.copy()
-        return g, float(np.mean(losses))
+        if self.imls is None:                                      # images only: one weight everywhere
+            w, s = np.full(self.n, self.options.beta), None
+        elif self.complete:                                        # a mesh frame sees every part of the surface
+            w, s = np.full(self.n, self.options.beta * self.w), np.ones(self.n)
+        else:
+            V = state.numpy("x")
+            Q, Nq = V, None
+            if self.vertex_op is not None:
+                with dr.suspend_grad():
+                    x = mi.Float(V.ravel().astype(np.float32))
+                    Q = np.array(self.vertex_op.positions(x), dtype=np.float64).T
+                    Nq = np.array(self.vertex_op.normals(x), dtype=np.float64).T
+            s = support(Q, self.imls.tree, self.radius, Nq, self.imls.normals if Nq is not None else None)
+            w = self.options.beta * (self.w + (1.0 - self.w) * (1.0 - s))
+        self._s = s
+        self.seen = float(np.mean(s > 0.5)) if s is not None else 0.0
+        self._weights = mi.Float(np.repeat(w, 3).astype(np.float32))
+
+    def __call__(self, g, state):
+        """``k w_i (I + lambda L)^-1 g`` of the image gradient ``g`` (``mi.Float (3n)``)."""
+        if self._weights is None:
+            self._update(state)
+        if self.smooth is not None:          # Sobolev gradient: the render noise averaged over neighbourhoods
+            g = self.smooth.solve(g)
+        if self.k is None:
+            self.k = self._scale(np.array(state.grads["x"], dtype=np.float64).reshape(-1, 3),
+                                 np.array(g, dtype=np.float64).reshape(-1, 3))
+        return g * (self._weights * self.k)
+
+    def _scale(self, g_geo, g_image) -> float:
+        """``k``: RMS of the geometric gradient over supported vertices / RMS of the image gradient."""
+        if not self.options.geometric:
+            return 1.0
+        s = self._s if self._s is not None else np.zeros(len(g_geo))
+        supported = (s > 0.5) & (self.options.seen < 1)     # with seen 1 the weights do not tell them apart
+        rows = g_geo[supported] if supported.any() else g_geo
+        a = float(np.sqrt(np.mean(np.sum(rows ** 2, axis=1))))
+        b = float(np.sqrt(np.mean(np.sum(g_image ** 2, axis=1))))
+        return a / b if b > 0 else 0.0
 
 
-def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame: int, lr: float,
-              progress=None, *, rest=None, vertex_op=None, iterations: int | None = None, complete: bool = False):
+def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: SequenceOptions, frame: int,
+              lr: float, progress=None, *, rest=None, vertex_op=None, iterations: int | None = None,
+              complete: bool = False):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
-    Adam on the gradients of ``E_t`` (module docstring): ``iterations``
-    steps (default ``options.iterations``), the first half with ARAP
-    ``options.stiff_factor`` times stiffer, the image gradient refreshed every
-    ``options.image_every`` steps.
+    One run of the optimisation loop on ``E_t`` (module docstring):
+    ``iterations`` steps (default ``options.iterations``; fewer when
+    ``options.tolerance`` > 0 and the energy stops improving), the first half
+    with ARAP ``options.stiff_factor`` times stiffer, the image gradient
+    refreshed every ``options.image_every`` steps, the neighbour lists every 10.
 
     Parameters
     ----------
@@ -221,13 +323,15 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
         The frame's oriented points, in the unit box; None when
         ``options.geometric`` is False.
     op : LimitOperator
-        Limit samples of ``F`` for the distance terms (positions only suffice).
-    image : PhotoTerm, RenderedTerm or None
-        The frame's image term; None without one.
+        Limit samples of ``F`` for the distance terms (with derivatives: the
+        facing test and the fold barrier use the limit normals).
+    images : FrameImages or None
+        The frame's image term (None, or ``options.image`` False: without).
     options : SequenceOptions
         Weights, iteration counts, views per refresh, seed.
     frame : int
-        Frame index: seeds the choice of views and the renders' samplers.
+        Frame index: the branch of the seed tree (``options.seed``, frame) the
+        views and the renders' samplers come from.
     lr : float
         Largest Adam step (unit box); the step starts from the warm start's
         IMLS residual, capped by ``lr``.
@@ -250,10 +354,11 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     V : (n, 3) float64 NumPy array
         Fitted control points, unit box.
     info : dict
-        ``history`` (``geo`` energy per iteration and ``image`` loss, NaN
-        between refreshes), ``time_render`` (seconds in the renders and their
-        reverse passes), ``iterations``, ``image_scale`` (``k``), ``seen``
-        (share of control vertices the data supports).
+        ``history`` (``geo``: the geometric energy per iteration, ``image``:
+        the image loss, NaN between refreshes), ``time_render`` (seconds in
+        the renders and their reverse passes), ``iterations``, ``image_scale``
+        (``k``), ``seen`` (share of control vertices the data supports),
+        ``noise``, ``seen_weight``, ``albedo`` (the frame's albedo, (n, 3), or None).
 
     Raises
     ------
@@ -263,150 +368,87 @@ def fit_frame(x0, F, points, normals, op, image, options: SequenceOptions, frame
     import drjit as dr
     import mitsuba as mi
 
-    from mi_loop.ad.control import ControlPoints
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
-    from mi_loop.energies.fold import fold_energy
     from mi_loop.energies.imls import IMLS
+    from mi_loop.fitting import terms
+    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, Seeds, optimise
+    from mi_loop.fitting.optimisers import Adam, Constant
 
     n = len(x0)
     n_it = int(iterations or options.iterations)
-    arap = ARAP(x0, F)                 # rest = previous frame's fit
-    arap_rest = ARAP(rest, F) if rest is not None and options.alpha_rest > 0 else None
-    imls = IMLS(points, normals, max_growths=options.reach) if options.geometric else None
-    cover = Coverage(points, normals, tree=imls.tree) if options.geometric and options.cover > 0 else None
-    alpha_t = dr.opaque(mi.Float, options.alpha / n)
-    alpha_r = dr.opaque(mi.Float, options.alpha_rest / n)
-    fold = None
+    failure = Failure("fit_frame", context=f"frame {frame}, ")
+    x = mi.Float(np.asarray(x0, dtype=np.float32).ravel())
+    parts = [terms.Rigidity(ARAP(x0, F), options.alpha / n,       # rest = the previous frame's fit
+                            stiff=(options.stiff_factor, n_it // 2) if options.stiff_factor > 1 else None)]
+    if rest is not None and options.alpha_rest > 0:
+        parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
+    normals0 = op.normals(x) if op.derivatives else None
+    dr.eval(normals0)
     if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
-        n_prev = _sample_normals(op, x0)
-        fold = (mi.Normal3f(n_prev.T.astype(np.float32)), dr.opaque(mi.Float, options.fold))
-    rng = np.random.default_rng([options.seed, frame])
-    if imls is not None:
+        parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
+    imls = None
+    if options.geometric:
+        imls = IMLS(points, normals, max_growths=options.reach)
+        parts.append(terms.Distance(imls, op, facing=op.derivatives))
+        if options.cover > 0:
+            parts.append(terms.Coverage(Coverage(points, normals, tree=imls.tree), op, options.cover,
+                                        facing=op.derivatives))
         # Step from the residual of the warm start (as in static fitting), capped by lr.
-        Q0 = op.positions(mi.Float(x0.ravel().astype(np.float32)))
-        imls.update(np.array(Q0, dtype=np.float64).T, _sample_normals(op, x0))
-        lr = float(np.clip(np.sqrt(float(imls.energy(Q0, reduce="mean")[0])) / 3.0, 1e-2 * lr, lr))
-    opt = dr.opt.Adam(lr=lr, params={"x": mi.Float(x0.ravel().astype(np.float32))})
-    use_image = options.image and image is not None
-    noise, seen_weight, support_radius = None, options.seen, None
-    if use_image and imls is not None and complete:   # a mesh frame: renders weigh by its roughness
+        Q0 = op.positions(x)
+        N0 = None if normals0 is None else np.array(normals0, dtype=np.float64).T
+        imls.update(np.array(Q0, dtype=np.float64).T, N0)
+        e0 = float(imls.energy(Q0, reduce="mean")[0])
+        if not np.isfinite(e0):
+            raise failure.error(0, {"imls": e0})
+        lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-2 * lr, lr))
+    seeds = Seeds(options.seed).child(frame)
+    params = {"x": Parameter(x, Adam(), Constant(lr))}
+    balance, extra = _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts)
+    keep = "best" if options.tolerance > 0 else "last"
+    result = optimise(params, parts, iterations=n_it, seeds=seeds, refresh=Refresh(10),
+                      convergence=Convergence(options.tolerance),
+                      failure=failure, keep=keep,
+                      progress=None if progress is None else (lambda i, total, _: progress(i, total)))
+    h = result.history
+    info = {"history": {"geo": h["total"], "image": h.get("image", [np.nan] * result.iterations)},
+            "time_render": result.seconds.get("image", 0.0), "iterations": result.iterations,
+            "image_scale": None if balance is None or balance.k is None else float(balance.k),
+            "seen": 1.0 if balance is None else balance.seen,
+            "albedo": result.values["albedo"] if "albedo" in result.values else extra.get("albedo"), **extra}
+    return result.values["x"], info
+
+
+def _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts):
+    """Append the frame's image term to ``parts`` (and its albedo to ``params``); ``(balance, info)``."""
+    import mitsuba as mi
+
+    from mi_loop.fitting import terms
+    from mi_loop.fitting.loop import Parameter
+    from mi_loop.fitting.optimisers import Adam, Constant
+
+    extra = {"noise": None, "seen_weight": float(options.seen)}
+    if not options.image or images is None:
+        return None, extra | {"albedo": None if images is None else np.asarray(images.albedo, dtype=np.float64)}
+    seen_weight, radius = options.seen, None
+    if imls is not None and complete:                 # a mesh frame: renders weigh by its roughness
         from mi_loop.mesh.points import noise_level
 
-        noise = noise_level(imls.points, tree=imls.tree)
-        seen_weight = options.seen * min(1.0, (noise / (0.5 * image.pixel_size())) ** 2)
-        use_image = options.beta * seen_weight >= MIN_IMAGE_WEIGHT    # else the renders would move nothing
-    elif use_image and imls is not None:              # full support within three data spacings
+        extra["noise"] = noise_level(imls.points, tree=imls.tree)
+        seen_weight = options.seen * min(1.0, (extra["noise"] / (0.5 * images.pixel)) ** 2)
+        extra["seen_weight"] = float(seen_weight)
+        if options.beta * seen_weight < MIN_IMAGE_WEIGHT:    # else the renders would move nothing
+            return None, extra | {"albedo": np.asarray(images.albedo, dtype=np.float64)}
+    elif imls is not None:                            # full support within three data spacings
         P = imls.points[::max(1, len(imls.points) // 2000)]
-        support_radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
-    smooth = None
-    if use_image and options.lam > 0:
-        from mi_loop.fitting.largesteps import SmoothParameterisation
-
-        smooth = SmoothParameterisation(F, n, options.lam)
-    order = []
-    history = {"geo": [], "image": []}
-    t_render, k_scale, g_image, weights, seen = 0.0, None, None, None, 1.0
-    for it in range(n_it):
-        x = ControlPoints(opt["x"])       # shared by ARAP and the limit operator
-        Vn = x.numpy()
-        # Stiff-to-soft: the first half of the iterations weigh ARAP (relative
-        # to the previous frame) by stiff_factor, so parts that moved far (thin
-        # horns, legs) follow the bulk as near-rigid pieces instead of snapping
-        # onto the nearest surface; the second half fits details.
-        stiff = it < n_it // 2 and options.stiff_factor > 1
-        E = (alpha_t * options.stiff_factor if stiff else alpha_t) * arap.energy(x, arap.rotations(Vn))
-        if arap_rest is not None:
-            E = E + alpha_r * arap_rest.energy(x, arap_rest.rotations(Vn))
-        if fold is not None:       # limit normals turned by more than 60 degrees since the previous frame
-            E = E + fold[1] * fold_energy(op.normals(x), fold[0])
-        refresh = it % 10 == 0
-        if imls is not None:
-            Q = op.positions(x)
-            if refresh:
-                Qn = np.array(Q, dtype=np.float64).T
-                Nq = _sample_normals(op, Vn)
-                imls.update(Qn, Nq)
-                if cover is not None:
-                    cover.update(Qn, Nq)
-            E = E + imls.energy(Q, reduce="mean")
-            if cover is not None:
-                E = E + options.cover * cover.energy(Q)
-        geo = float(E[0])
-        if not np.isfinite(geo):
-            raise FitError(f"fit_frame(): expected a finite energy, got geometric {geo} at frame {frame}, "
-                           f"iteration {it} (the optimisation diverged)")
-        dr.backward(E)
-        loss = np.nan
-        if use_image and it % options.image_every == 0:
-            if refresh or weights is None:
-                if complete and imls is not None:   # a mesh frame: the data see every part of the surface
-                    weights, s = np.full(n, options.beta * seen_weight), np.ones(n)
-                else:
-                    weights, s = _image_weights(Vn, vertex_op, imls, support_radius, seen_weight, options)
-                seen = float(np.mean(s > 0.5)) if s is not None else 0.0
-            t = time.perf_counter()
-            if len(order) < options.views_per_iteration:
-                order += rng.permutation(image.n_views).tolist()
-            ids, order = order[:options.views_per_iteration], order[options.views_per_iteration:]
-            g_image, loss = image.gradient(Vn, ids, seed=frame * 1000 + it + 100_000 * options.seed)
-            t_render += time.perf_counter() - t
-            if smooth is not None:         # Sobolev gradient: the render noise averaged over neighbourhoods
-                g_image = smooth.gradient(g_image)
-            if not (np.isfinite(loss) and np.isfinite(g_image).all()):
-                raise FitError(f"fit_frame(): expected a finite image loss, got {loss} at frame {frame}, "
-                               f"iteration {it} (the optimisation diverged)")
-            if k_scale is None:
-                k_scale = _image_scale(np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3),
-                                       g_image, s, options)
-        if g_image is not None:
-            g = np.asarray(dr.grad(opt["x"]), dtype=np.float64).reshape(-1, 3)
-            g += (k_scale * weights)[:, None] * g_image
-            dr.set_grad(opt["x"], mi.Float(g.astype(np.float32).ravel()))
-        history["geo"].append(geo)
-        history["image"].append(loss)
-        opt.step()
-        if progress is not None:
-            progress(it + 1, n_it)
-    V = np.array(opt["x"], dtype=np.float64).reshape(-1, 3)
-    return V, {"history": history, "time_render": t_render, "iterations": n_it,
-               "image_scale": float(k_scale) if k_scale is not None else None, "seen": float(seen),
-               "noise": noise, "seen_weight": float(seen_weight)}
-
-
-def _sample_normals(op, Vn):
-    """Unit limit normals at the operator's samples (NumPy), or None if it has no derivative rows."""
-    import drjit as dr
-    import mitsuba as mi
-
-    if not op.derivatives:
-        return None
-    with dr.suspend_grad():
-        return np.array(op.normals(mi.Float(np.asarray(Vn, dtype=np.float32).ravel())), dtype=np.float64).T
-
-
-def _image_weights(Vn, vertex_op, imls, radius: float, w: float, options: SequenceOptions):
-    """Per-vertex image weights ``beta (w + (1 - w)(1 - s_i))`` and the supports ``s`` (None: images only)."""
-    import mitsuba as mi
-
-    if imls is None:                    # images only: the same weight everywhere
-        return np.full(len(Vn), options.beta), None
-    Nq = None
-    if vertex_op is not None:
-        Q = np.array(vertex_op.positions(mi.Float(Vn.ravel().astype(np.float32))), dtype=np.float64).T
-        Nq = _sample_normals(vertex_op, Vn)
-    else:
-        Q = Vn
-    s = support(Q, imls.tree, radius, Nq, imls.normals if Nq is not None else None)
-    return options.beta * (w + (1.0 - w) * (1.0 - s)), s
-
-
-def _image_scale(g_geo, g_image, s, options: SequenceOptions) -> float:
-    """``k``: RMS of the geometric gradient over supported vertices / RMS of the image gradient."""
-    if not options.geometric:
-        return 1.0
-    supported = (s > 0.5) & (options.seen < 1)     # with seen 1 the weights do not tell them apart
-    rows = g_geo[supported] if supported.any() else g_geo
-    a = float(np.sqrt(np.mean(np.sum(rows ** 2, axis=1))))
-    b = float(np.sqrt(np.mean(np.sum(g_image ** 2, axis=1))))
-    return a / b if b > 0 else 0.0
+        radius = 3.0 * float(np.median(imls.tree.query(P, k=2)[0][:, 1]))
+    albedo = mi.Float(np.asarray(images.albedo, dtype=np.float32).ravel())
+    if images.albedo_lr > 0:
+        opt = images.albedo_optimiser if images.albedo_optimiser is not None else Adam()
+        params["albedo"] = Parameter(albedo, opt, Constant(images.albedo_lr), bounds=(0.0, 1.0))
+    balance = ImageBalance(F, n, options, seen_weight, imls, vertex_op, radius, complete)
+    renderer = images.renderer() if callable(images.renderer) else images.renderer
+    parts.append(terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
+                                 every=options.image_every, to_world=images.to_world, shaping=balance,
+                                 seeds=seeds))
+    return balance, extra | {"albedo": np.asarray(images.albedo, dtype=np.float64)}

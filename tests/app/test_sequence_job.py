@@ -17,7 +17,6 @@ import pytest
 
 import mi_loop.fitting.sequence
 import mi_loop.io.files
-import mi_loop.render.multiview
 from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.fitting.options import SequenceOptions
@@ -171,12 +170,12 @@ def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_ru
 
 
 def spy_on_camera_boxes(monkeypatch, boxes):
-    """Record the camera box of every Renderer the job builds."""
-    class Spy(mi_loop.render.multiview.Renderer):
-        def __init__(self, V0, F, bbox, options):
-            boxes.append(np.array(bbox, dtype=np.float64))
-            super().__init__(V0, F, bbox, options)
-    monkeypatch.setattr(mi_loop.render.multiview, "Renderer", Spy)
+    """Record the camera box of every camera rig the job builds."""
+    class Spy(mi_loop.fitting.sequence.Rig):
+        def __init__(self, options, box):
+            boxes.append(np.array(box, dtype=np.float64))
+            super().__init__(options, box)
+    monkeypatch.setattr(mi_loop.fitting.sequence, "Rig", Spy)
 
 
 @pytest.mark.slow
@@ -601,7 +600,7 @@ def test_a_diverging_frame_is_a_fit_error_naming_frame_and_iteration(inputs, tmp
     monkeypatch.setattr(IMLS, "energy", energy)
     out = tmp_path / "out"
     line = one_line_error(capsys, argv(inputs, out, "--no-image"))
-    assert re.fullmatch(r"mi-loop: error: fit_frame\(\): expected a finite energy, got geometric nan "
+    assert re.fullmatch(r"mi-loop: error: fit_frame\(\): expected a finite energy, got imls nan "
                         r"at frame 1, iteration \d+ \(the optimisation diverged\)", line), line
     assert [int(r["frame"]) for r in read_rows(out)] == [0]
     frame.clear()

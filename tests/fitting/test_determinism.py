@@ -13,11 +13,10 @@ import pytest
 from mi_loop import datasets
 from mi_loop.ad.operator import LimitOperator
 from mi_loop.fitting.options import FitOptions, SequenceOptions
-from mi_loop.fitting.sequence import RenderedTerm, fit_frame
+from mi_loop.fitting.sequence import Rig, fit_frame
 from mi_loop.fitting.static import fit, sample_parameters
-from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
+from mi_loop.mesh.geometry import mean_edge_length
 from mi_loop.mesh.sampling import sample_surface
-from mi_loop.render.multiview import Renderer
 
 
 @pytest.mark.slow
@@ -46,13 +45,12 @@ def run_sequence(options, with_images=False):
     V, F = datasets.icosphere(2)
     x = 0.45 * V
     op = LimitOperator(F, len(x), *sample_parameters(F, len(x), "level1"), derivatives=False)
-    renderer = Renderer(x, F, (np.full(3, -0.8), np.full(3, 0.8)), options.rig) if with_images else None
+    rig = Rig(options, (np.full(3, -0.8), np.full(3, 0.8))) if with_images else None
     lr = 0.02 * mean_edge_length(x, F)
     fits = []
     for t, (P, Nrm, (Vt, Ft)) in enumerate(frames()):
-        targets = renderer.targets(Vt, Ft, vertex_normals(Vt, Ft)) if with_images else None
-        image = RenderedTerm(renderer, targets) if with_images else None
-        x, _ = fit_frame(x, F, P, Nrm, op, image, options, frame=t, lr=lr, rest=0.45 * V)
+        images = rig.images(x, F, (Vt, Ft), t) if with_images else None
+        x, _ = fit_frame(x, F, P, Nrm, op, images, options, frame=t, lr=lr, rest=0.45 * V)
         fits.append(x)
     return fits
 

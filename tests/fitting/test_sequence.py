@@ -1,7 +1,7 @@
 """Fitting one frame of a sequence (mi_loop.fitting.sequence.fit_frame): geometric and image terms.
 
 The job around it (``mi-loop fit-sequence``: frames, outputs, resume) is tested
-in tests/app/test_sequence_job.py, the renderer in tests/render/test_multiview.py.
+in tests/app/test_sequence_job.py, the renderer in tests/render/test_images.py.
 """
 from __future__ import annotations
 
@@ -9,11 +9,10 @@ import numpy as np
 
 from mi_loop.ad.operator import LimitOperator
 from mi_loop.fitting.options import SequenceOptions
-from mi_loop.fitting.sequence import RenderedTerm, fit_frame
+from mi_loop.fitting.sequence import Rig, fit_frame
 from mi_loop.fitting.static import sample_parameters
-from mi_loop.mesh.geometry import mean_edge_length, vertex_normals
+from mi_loop.mesh.geometry import mean_edge_length
 from mi_loop.mesh.sampling import sample_surface
-from mi_loop.render.multiview import Renderer
 
 from helpers import CAMERA_BOX, limit_surface, sphere_mesh
 
@@ -46,11 +45,10 @@ def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
     V0, F = sphere_mesh(0.3, 1)
     options = SequenceOptions(views=4, views_per_iteration=2, resolution=24, spp=4, target_spp=16,
                               level=1, mode="silhouette", geometric=False, iterations=20, image_every=1)
-    renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
     Vt, Ft = sphere_mesh(0.45)
-    targets = renderer.targets(Vt, Ft, vertex_normals(Vt, Ft))
+    images = Rig(options, CAMERA_BOX).images(V0, F, (Vt, Ft), 0)
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
-    V, info = fit_frame(V0, F, None, None, op, RenderedTerm(renderer, targets), options, frame=0, lr=0.01)
+    V, info = fit_frame(V0, F, None, None, op, images, options, frame=0, lr=0.01)
     r0, r1 = limit_radius(V0, F), limit_radius(V, F)
     assert r1 > r0 + 0.03, (r0, r1)
     assert r1 < 0.45 + 0.05, r1                                  # does not overshoot the target

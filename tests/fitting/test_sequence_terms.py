@@ -1,4 +1,4 @@
-"""Pieces of the capture-grade sequence fit: data support, facing-only IMLS and coverage, photo renderer reuse."""
+"""Pieces of the capture-grade sequence fit: data support, facing-only IMLS and coverage, renderers, pixel widths."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from mi_loop.energies.coverage import Coverage
 from mi_loop.energies.imls import IMLS
-from mi_loop.fitting.sequence import PhotoTerm, RenderedTerm, support
+from mi_loop.fitting.sequence import Rig, pixel_size, support
 
 
 def slab(n=21, gap=0.1):
@@ -51,14 +51,15 @@ def test_the_photo_renderer_takes_new_photos_from_the_same_cameras_only():
     from mi_loop import datasets
     from mi_loop.io.emitters import DEFAULT_EMITTERS
     from mi_loop.render.cameras import fibonacci_cameras
-    from mi_loop.render.photo import PhotoRenderer, render_views
+    from mi_loop.render.captures import render_views
+    from mi_loop.render.images import ImageRenderer
 
     V, F = datasets.icosphere(1)
     lights = [dict(e) for e in DEFAULT_EMITTERS]
     cams = fibonacci_cameras(2, [0, 0, 0], 3.0, fov_x_deg=40, width=16, height=16)
     a = render_views(0.5 * V, F, cams, lights, spp=4)
     b = render_views(0.7 * V, F, cams, lights, spp=4)
-    r = PhotoRenderer(V, F, np.full(V.shape, 0.5), a, lights, level=0, spp=2)
+    r = ImageRenderer(V, F, a, lights, albedo=np.full(V.shape, 0.5), level=0, spp=2)
     before = np.array(r.targets[0])
     assert r.set_photos(b)
     assert not np.allclose(np.array(r.targets[0]), before)
@@ -74,13 +75,14 @@ def test_the_rig_pixel_width_is_what_mitsubas_own_sensor_sees_at_the_subject():
     import mitsuba as mi
 
     from mi_loop.fitting.options import SequenceOptions
-    from mi_loop.render.multiview import Renderer
 
     from helpers import CAMERA_BOX, sphere_mesh
 
     V, F = sphere_mesh(0.4, 1)
     options = SequenceOptions(views=3, resolution=40)
-    renderer = Renderer(V, F, CAMERA_BOX, options.rig)
+    rig = Rig(options, CAMERA_BOX)
+    images = rig.images(V, F, sphere_mesh(0.45, 2), 0)
+    renderer = images.renderer()
     centre = 0.5 * (CAMERA_BOX[0] + CAMERA_BOX[1])
     for sensor in renderer.scene.sensors():
         hits = []
@@ -90,20 +92,15 @@ def test_the_rig_pixel_width_is_what_mitsubas_own_sensor_sees_at_the_subject():
             axis = (centre - o) / np.linalg.norm(centre - o)
             hits.append(o + d * ((centre - o) @ axis) / (d @ axis))
         width = float(np.linalg.norm(hits[1] - hits[0]))
-        assert abs(RenderedTerm(renderer, []).pixel_size() / width - 1) < 1e-3, width
+        assert abs(images.pixel / width - 1) < 1e-3, width
 
 
 def test_the_photo_pixel_width_projects_to_one_pixel_at_the_subject():
-    from types import SimpleNamespace
-
-    from mi_loop.fitting.static import Normalisation
     from mi_loop.render.cameras import fibonacci_cameras, project
 
     centre, scale = np.array([1.0, 2.0, -1.0]), 4.0
     cams = fibonacci_cameras(5, centre, 10.0, fov_x_deg=40, width=64, height=48)
-    term = PhotoTerm(SimpleNamespace(views=[SimpleNamespace(camera=c) for c in cams]),
-                     Normalisation(centre=centre, scale=scale), np.zeros((4, 3)), 0.0)
-    p = term.pixel_size() * scale             # unit box -> capture units
+    p = pixel_size(cams, centre, scale) * scale             # unit box -> capture units
     for c in cams:
         right = c.c2w[:3, 0]
         x = project(c, np.stack([centre, centre + p * right]))
@@ -117,7 +114,6 @@ def _weights_after_one_step(noise_sigma, *, half=False, complete=False):
     from mi_loop.fitting.sequence import fit_frame
     from mi_loop.fitting.static import sample_parameters
     from mi_loop.mesh.sampling import sample_surface
-    from mi_loop.render.multiview import Renderer
 
     from helpers import CAMERA_BOX, sphere_mesh
 
@@ -129,11 +125,10 @@ def _weights_after_one_step(noise_sigma, *, half=False, complete=False):
         P, N = P[P[:, 2] > 0], N[P[:, 2] > 0]
     options = SequenceOptions(views=2, views_per_iteration=1, resolution=128, spp=1, target_spp=2, level=0,
                               iterations=1, image_every=1)
-    renderer = Renderer(V0, F, CAMERA_BOX, options.rig)
-    term = RenderedTerm(renderer, renderer.targets(Vt, Ft))
+    images = Rig(options, CAMERA_BOX).images(V0, F, (Vt, Ft), 0)
     op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=True)
-    _, info = fit_frame(V0, F, P, N, op, term, options, frame=0, lr=1e-3, complete=complete)
-    return info, term.pixel_size()
+    _, info = fit_frame(V0, F, P, N, op, images, options, frame=0, lr=1e-3, complete=complete)
+    return info, images.pixel
 
 
 def test_renders_of_a_mesh_frame_count_only_as_much_as_its_roughness_warrants():
