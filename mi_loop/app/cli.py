@@ -49,48 +49,68 @@ from __future__ import annotations
 import os
 import sys
 import traceback
-from dataclasses import fields
 
 from mi_loop import datasets, io
-from mi_loop.app.parser import build_parser, flag
+from mi_loop.app.parser import build_parser
 from mi_loop.app.progress import Reporter
 from mi_loop.errors import FitError, expected
-from mi_loop.fitting.options import FitOptions, ImageFitOptions, OptionError, SequenceOptions
+from mi_loop.fitting.options import (
+    IMAGE_INITS,
+    FitOptions,
+    ImageFitOptions,
+    OptionError,
+    SequenceOptions,
+    declared,
+    option_flag,
+)
 
-__all__ = ["main"]
+__all__ = ["main", "options_from_args"]
 
 
-def _options(cls, values: dict, command: str):
-    """``cls(**values)``; a rejected value is reported with its flag (``fit --alpha: expected ...``)."""
+def options_from_args(cls, args, command: str):
+    """The ``cls`` options (:mod:`mi_loop.fitting.options`) of parsed arguments, checked.
+
+    Parameters
+    ----------
+    cls : type
+        :class:`FitOptions`, :class:`SequenceOptions` or :class:`ImageFitOptions`.
+    args : argparse.Namespace
+        Parsed by :func:`~mi_loop.app.parser.build_parser` (a field's value under its name).
+    command : str
+        The command, for messages (``'fit'``, ``'fit-batch'``).
+
+    Returns
+    -------
+    object
+        ``cls(...)``: a capped default is capped by its other flag (``--views-per-iteration``
+        at most ``--views``); a file given to a flag that also takes one leaves the field
+        at its default (``fit-images --init MESH``).
+
+    Raises
+    ------
+    ValueError
+        A rejected value, named by its flag: ``fit --alpha: expected a finite number >= 0, got -1.0``.
+    """
+    values = {}
+    for f, declaration in declared(cls):
+        value = getattr(args, f.name)
+        if value is None and declaration.capped_by:
+            value = min(f.default, getattr(args, declaration.capped_by))
+        if declaration.paths and value not in declaration.rule.choices:
+            value = f.default
+        values[f.name] = value
     try:
         return cls(**values)
     except OptionError as exc:
-        raise ValueError(expected(f"{command} {flag(exc.name)}", exc.what, exc.shown)) from None
+        flags = {f.name: option_flag(f) for f, _ in declared(cls)}
+        raise ValueError(expected(f"{command} {flags.get(exc.name, exc.name)}", exc.what, exc.shown)) from None
 
 
-def fit_options(args, command: str = "fit") -> FitOptions:
-    """The :class:`FitOptions` of ``mi-loop fit``'s (or ``fit-batch``'s) arguments (checked)."""
-    return _options(FitOptions, {f.name: getattr(args, f.name) for f in fields(FitOptions)}, command)
-
-
-def sequence_options(args, command: str = "fit-sequence") -> SequenceOptions:
-    """The :class:`SequenceOptions` of ``fit-sequence``'s (or ``fit-batch --sequences``') arguments (checked)."""
-    values = {f.name: getattr(args, f.name) for f in fields(SequenceOptions) if hasattr(args, f.name)}
-    if args.views_per_iteration is None:          # the default, but never more than --views
-        values["views_per_iteration"] = min(SequenceOptions.views_per_iteration, args.views)
-    values.update(geometric=not args.image_only, image=not args.no_image)
-    options = _options(SequenceOptions, values, command)
+def _no_template_to_build(args, command: str) -> None:
+    """``--poisson-template`` builds the template: refuse it with ``--template``."""
     if args.template is not None and args.poisson_template:
         raise ValueError(expected(f"{command} --poisson-template", "no --template (it builds the template)",
                                   f"--template '{args.template}'"))
-    return options
-
-
-def image_options(args) -> ImageFitOptions:
-    """The :class:`ImageFitOptions` of ``mi-loop fit-images``'s arguments (checked)."""
-    values = {f.name: getattr(args, f.name) for f in fields(ImageFitOptions) if hasattr(args, f.name)}
-    values["init"] = args.init if args.init in ("sphere", "hull") else "sphere"
-    return _options(ImageFitOptions, values, "fit-images")
 
 
 def check_variant(name: str, command: str) -> None:
@@ -154,7 +174,7 @@ def _render_file(args, log) -> None:
 def _fit(args, log) -> None:
     from mi_loop.app import fit_job
 
-    options = fit_options(args)
+    options = options_from_args(FitOptions, args, "fit")
     if args.demo == (args.input is not None):
         raise ValueError(expected("fit INPUT", "an input file or --demo (one of them)",
                                   "both" if args.demo else "neither"))
@@ -166,7 +186,8 @@ def _fit(args, log) -> None:
 def _fit_sequence(args, log) -> None:
     from mi_loop.app import sequence_job
 
-    options = sequence_options(args)
+    options = options_from_args(SequenceOptions, args, "fit-sequence")
+    _no_template_to_build(args, "fit-sequence")
     check_variant(args.variant, "fit-sequence")
     _check_fps(args.fps, "fit-sequence")
     sequence_job.run(args.frames, args.output, options, template=args.template, resume=args.resume,
@@ -178,7 +199,9 @@ def _fit_sequence(args, log) -> None:
 def _fit_batch(args, log) -> None:
     from mi_loop.app import batch_job
 
-    options = sequence_options(args, "fit-batch") if args.sequences else fit_options(args, "fit-batch")
+    options = options_from_args(SequenceOptions if args.sequences else FitOptions, args, "fit-batch")
+    if args.sequences:
+        _no_template_to_build(args, "fit-batch")
     check_variant(args.variant, "fit-batch")
     batch_job.run(args.inputs, args.output, options, scheduler=args.scheduler, workers=args.workers,
                   template=args.template, variant=args.variant, frames=getattr(args, "frame_range", None), log=log,
@@ -190,8 +213,8 @@ def _fit_images(args, log) -> None:
 
     from mi_loop.app import images_job
 
-    options = image_options(args)
-    init = None if args.init in ("sphere", "hull") else Path(args.init)
+    options = options_from_args(ImageFitOptions, args, "fit-images")
+    init = None if args.init in IMAGE_INITS else Path(args.init)
     if init is not None and not init.is_file():
         raise ValueError(expected("fit-images --init", "sphere, hull or an existing control mesh file",
                                   f"'{args.init}'"))

@@ -1,61 +1,56 @@
-"""The ``mi-loop`` argument parser: subcommands, flags, help; defaults read from the option classes.
+"""The ``mi-loop`` argument parser: subcommands, flags, help.
 
-The fitting defaults live in :mod:`mi_loop.fitting.options` only; the flags
-below store into destinations named like the fields (``--vertices`` into
-``n_vertices``), and :data:`FLAGS` maps a field back to its flag for error
-messages. ``--quiet`` and ``--debug`` are accepted before or after the subcommand.
+Every flag of an option field (of :class:`~mi_loop.fitting.options.FitOptions`,
+:class:`~mi_loop.fitting.options.SequenceOptions`,
+:class:`~mi_loop.fitting.options.ImageFitOptions`) is generated from the field's
+declaration in :mod:`mi_loop.fitting.options` by :func:`add_options`: the flag,
+its destination (the field's name), type, default, choices, metavar, help, its
+deprecated spellings and special forms. Only what is not an option field is
+written here (inputs, ``-o``, ``--template``, ``--images``, ``--frames`` ...).
+:data:`FLAGS` and :func:`flag` map a field to its flag. ``--quiet`` and ``--debug``
+are accepted before or after the subcommand.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import fields
 from pathlib import Path
 
 from mi_loop import datasets
 from mi_loop.app.cluster import LOCAL_WORKERS
 from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
 from mi_loop.app.export_job import FORMATS, LIMIT_LEVELS, VIEW_LEVELS
-from mi_loop.fitting.options import SAMPLE_MODES, FitOptions, ImageFitOptions, SequenceOptions
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions, declared, option_flag
 from mi_loop.render.variant import DEFAULT_VARIANT
 
-__all__ = ["FLAGS", "build_parser", "flag"]
+__all__ = ["FLAGS", "add_options", "build_parser", "flag"]
 
-#: Option field -> its flag, where the two names differ.
-FLAGS = {"n_vertices": "--vertices", "iterations": "--iterations", "iterations": "--iterations",
-         "resolution": "--res", "n_points": "--points",
-         "geometric": "--image-only", "image": "--no-image"}
+#: Option field -> its flag, from the fields' declarations (one flag per name in every command).
+FLAGS = {f.name: option_flag(f) for cls in (FitOptions, SequenceOptions, ImageFitOptions) for f in fields(cls)}
 
-SAMPLES_HELP = ("limit samples of the distance terms: 'level1' (default) the points of a level-1 "
-                "tessellation, about 4 per control vertex (closer fits); 'vertices' one per control vertex "
-                "(its limit point: faster, the thesis's choice); 'random' four uniformly random points per "
-                "control face, drawn once from --seed")
-SEED_HELP = ("random seed: of the automatic template's sampling and of --samples random{} (default 0); "
-             "the same seed, input and thread count give the same result")
 QUIET_HELP = "no progress lines or bars on stderr (errors, warnings and the written paths still appear)"
 DEBUG_HELP = "show the Python traceback behind an error (as does the environment MI_LOOP_TRACEBACK=1)"
 
 
 def flag(name: str) -> str:
-    """Return the command-line flag of an option field, for error messages.
+    """Return the command-line flag of an option field (:data:`FLAGS`); a name that is no field as it is.
 
     Parameters
     ----------
     name : str
-        A field of :class:`~mi_loop.fitting.options.FitOptions` or
-        :class:`~mi_loop.fitting.options.SequenceOptions`.
+        A field of an option class (:mod:`mi_loop.fitting.options`).
 
     Returns
     -------
     str
-        Its flag: from :data:`FLAGS` where the names differ, else ``--`` and the
-        name with dashes.
 
     Examples
     --------
-    >>> flag("n_vertices"), flag("views_per_iteration")
-    ('--vertices', '--views-per-iteration')
+    >>> flag("n_vertices"), flag("views_per_iteration"), flag("image")
+    ('--vertices', '--views-per-iteration', '--no-image')
     """
-    return FLAGS.get(name, "--" + name.replace("_", "-"))
+    return FLAGS.get(name, name)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -118,20 +113,22 @@ def _variant(p) -> None:
                         "(default %(default)s)")
 
 
-def positive(text: str) -> int:
-    """argparse type: an integer > 0."""
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
-    return value
+def _integer(low: int, high: float, what: str):
+    """An argparse type: an integer in ``low..high`` (a usage error names ``what``)."""
+    def parse(text: str) -> int:
+        value = int(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
+        return value
+    return parse
 
 
-def level(text: str) -> int:
-    """argparse type: a tessellation level in 0..6."""
-    value = int(text)
-    if not 0 <= value <= 6:
-        raise argparse.ArgumentTypeError(f"expected a level in 0..6, got {text}")
-    return value
+positive = _integer(1, float("inf"), "a positive integer")
+level = _integer(0, 6, "a level in 0..6")
+
+
+def _output(p, text: str = "output directory", **kwargs) -> None:
+    p.add_argument("-o", "--output", type=Path, help=text, **{"required": True, **kwargs})
 
 
 def _view_level(p, kind: str) -> None:
@@ -143,18 +140,88 @@ def _view_level(p, kind: str) -> None:
 
 
 def _render_options(p) -> None:
-    p.add_argument("--level", type=level, default=3, help="4**level triangles per control face (default 3)")
-    p.add_argument("--resolution", type=positive, default=256, help="image width and height (default 256)")
-    p.add_argument("--spp", type=positive, default=64, help="samples per pixel (default 64)")
+    p.add_argument("--level", type=level, metavar="L", default=3,
+                   help="tessellation level of the rendered limit surface, 4**L triangles per control face "
+                        "(default %(default)s)")
+    p.add_argument("--resolution", type=positive, metavar="R", default=256,
+                   help="image width and height, in pixels (default %(default)s)")
+    p.add_argument("--spp", type=positive, default=64, help="samples per pixel (default %(default)s)")
     _variant(p)
 
 
-def _template_options(p, options) -> None:
-    group = p.add_mutually_exclusive_group()
-    group.add_argument("--vertices", dest="n_vertices", type=int, metavar="N", default=options.n_vertices,
-                       help="control vertices of the automatic template (default %(default)s)")
+class _Deprecated(argparse.Action):
+    """An old spelling of a flag (hidden from the help): stores as the flag does and warns on stderr."""
+
+    def __init__(self, option_strings, dest, use: str, **kwargs):
+        super().__init__(option_strings, dest, **kwargs)
+        self.use = use
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"mi-loop: warning: {option_string} is deprecated; use {self.use}", file=sys.stderr, flush=True)
+        setattr(namespace, self.dest, values)
+
+
+def _arguments(f, declaration) -> dict:
+    """``add_argument`` keywords of an option field, from its declaration."""
+    rule, text = declaration.rule, declaration.help
+    if declaration.deprecated:
+        text += f" (deprecated spelling: {', '.join(declaration.deprecated)})"
+    if rule.parse is None:                             # a switch: the flag stores the opposite of the default
+        return {"dest": f.name, "action": "store_const", "const": not f.default, "default": f.default, "help": text}
+    kwargs = {"dest": f.name, "type": rule.parse, "default": f.default, "metavar": declaration.metavar, "help": text}
+    if rule.choices and not declaration.paths:
+        kwargs["choices"] = rule.choices
+    if declaration.capped_by:                          # the cli caps the default by the other flag's value
+        kwargs.update(default=None, help=text % {"default": f.default})
+    return kwargs
+
+
+def add_options(p, cls, extras: dict | None = None) -> None:
+    """Add the flag of every field of the option class ``cls``, as its declaration says.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The command's parser.
+    cls : type
+        :class:`~mi_loop.fitting.options.FitOptions`, :class:`~mi_loop.fitting.options.SequenceOptions`
+        or :class:`~mi_loop.fitting.options.ImageFitOptions`.
+    extras : dict, optional
+        Name of an exclusive group -> ``add(group)``, which adds the group's
+        hand-written flags (``'template'``: ``--template``) after its first field.
+    """
+    groups = {}
+    for f, declaration in declared(cls):
+        key = declaration.exclusive or (f.name if declaration.presets else None)
+        new = key is not None and key not in groups
+        if new:
+            groups[key] = p.add_mutually_exclusive_group()
+        where = p if key is None else groups[key]
+        where.add_argument(option_flag(f), **_arguments(f, declaration))
+        for name, value, text in declaration.presets:
+            where.add_argument(name, dest=f.name, action="store_const", const=value, default=argparse.SUPPRESS,
+                               help=text)
+        for old in declaration.deprecated:
+            p.add_argument(old, dest=f.name, type=declaration.rule.parse, action=_Deprecated, use=option_flag(f),
+                           default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+        if new and key in (extras or {}):
+            extras[key](groups[key])
+
+
+def _template(group) -> None:
     group.add_argument("--template", type=Path, metavar="PATH",
                        help="control mesh to start from instead, in the data's units and position")
+
+
+def _emitters(p) -> None:
+    p.add_argument("--emitters", type=Path, metavar="F",
+                   help="the photos' lighting: a Mitsuba XML file holding only emitters, in the photos' world frame "
+                        "(default: a constant environment of radiance 1)")
+
+
+def _frames_option(p, note: str = "") -> None:
+    p.add_argument("--frames", dest="frame_range", type=_frame_range, metavar="START:STOP:STEP",
+                   help=f"fit only these frames (Python slice syntax{note})")
 
 
 def _fit_parser(sub, common) -> None:
@@ -162,37 +229,11 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("input", type=Path, nargs="?",
                    help="points (PLY/XYZ/PTS/NPZ; normals estimated when missing) or mesh (PLY/OBJ/OFF); "
                         "omit with --demo")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
-    _fit_options(p)
+    _output(p)
+    add_options(p, FitOptions, {"template": _template})
     p.add_argument("--demo", action="store_true", help="fit the built-in noisy torus point cloud (no input file)")
     _view_level(p, "fit")
     _variant(p)
-
-
-def _fit_options(p) -> None:
-    """The options of :class:`FitOptions` and ``--template`` (``fit`` and ``fit-batch``)."""
-    o = FitOptions
-    _template_options(p, o)
-    p.add_argument("--alpha", type=float, default=o.alpha,
-                   help="ARAP weight (default: 0.001 on clean data; on noisy data the best of 0.001, 0.01, "
-                        "0.1, 1 on a tenth of the points held out of the fit)")
-    p.add_argument("--h0", type=float, default=o.h0,
-                   help="IMLS radius in the unit box (default: from the point spacing)")
-    p.add_argument("--cover", type=float, default=o.cover,
-                   help="coverage weight: data points pull their nearest limit samples (default %(default)s; "
-                        "0: off)")
-    p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
-    p.add_argument("--iterations", dest="iterations", type=int, metavar="N", default=o.iterations,
-                   help="iteration cap; the fit usually converges earlier (default %(default)s)")
-    p.add_argument("--tolerance", type=float, default=o.tolerance,
-                   help="relative improvement below which the fit has converged (default %(default)s)")
-    p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(""))
-    p.add_argument("--fold", type=float, default=o.fold,
-                   help="weight of the barrier on limit normals turned by more than 60 degrees from the nearest "
-                        "data normals (default %(default)s; 0: off)")
-    p.add_argument("--features", choices=["auto", "off"], default=o.features,
-                   help="for a mesh input, keep its sharp features (edges above 40 degrees) as creases of the "
-                        "control mesh (default %(default)s; point clouds have none here)")
 
 
 def _sequence_parser(sub, common) -> None:
@@ -201,13 +242,11 @@ def _sequence_parser(sub, common) -> None:
                    help="an NPZ (vertices (T,V,3), faces), or frame files / directories / quoted globs: "
                         "meshes, or point clouds with or without normals (PLY/XYZ/NPZ); or one animated "
                         "glTF/GLB with --animation")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    _output(p)
     p.add_argument("--images", nargs="+", metavar="CAPTURE",
                    help="one transforms.json per frame (files, directories, or quoted globs; sorted): "
                         "the frame's calibrated photos with masks, fitted together with the geometry")
-    p.add_argument("--emitters", type=Path, metavar="F",
-                   help="the photos' lighting as a Mitsuba XML file of emitters (default: a constant "
-                        "environment of radiance 1)")
+    _emitters(p)
     p.add_argument("--reference", type=Path, metavar="NPZ",
                    help="clean meshes in correspondence (vertices (T,V,3), faces), one per frame: "
                         "metrics.csv then measures distances, folds and drift against them")
@@ -216,82 +255,12 @@ def _sequence_parser(sub, common) -> None:
                    help="bake this animation of a skinned glTF/GLB into the frames")
     p.add_argument("--fps", type=float, default=24.0,
                    help="frame rate of sequence.glb and of the baked --animation (default %(default)s)")
-    _sequence_options(p)
+    add_options(p, SequenceOptions, {"template": _template})
     p.add_argument("--resume", action="store_true",
                    help="continue after the last finished frame, bit for bit as an uninterrupted run "
                         "(with the options stored in OUTDIR/sequence.json)")
     _view_level(p, "sequence")
     _variant(p)
-
-
-def _frames_option(p, note: str = "") -> None:
-    p.add_argument("--frames", dest="frame_range", type=_frame_range, metavar="START:STOP:STEP",
-                   help=f"fit only these frames (Python slice syntax{note})")
-
-
-def _sequence_options(p) -> None:
-    """The options of :class:`SequenceOptions` and ``--template`` (``fit-sequence`` and ``fit-batch --sequences``)."""
-    o = SequenceOptions
-    _template_options(p, o)
-    p.add_argument("--poisson-template", action="store_true",
-                   help="build the automatic template by screened Poisson even when the first frame is a mesh")
-    p.add_argument("--views", type=int, default=o.views,
-                   help="cameras around the subject for mesh frames without --images (default %(default)s)")
-    p.add_argument("--views-per-iteration", type=int, metavar="K",
-                   help=f"views rendered per image refresh, at most --views (default {o.views_per_iteration}, "
-                        "or --views if fewer)")
-    p.add_argument("--image-every", type=int, metavar="N", default=o.image_every,
-                   help="iterations between image refreshes; the latest image gradient is added to every "
-                        "step (default %(default)s)")
-    p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,
-                   help="image size of the rendered rig (default %(default)s; photos keep theirs)")
-    p.add_argument("--spp", type=int, default=o.spp, help="samples per pixel of the renders (default %(default)s)")
-    p.add_argument("--level", type=int, default=o.level,
-                   help="tessellation level of the rendered limit surface (default %(default)s)")
-    p.add_argument("--beta", type=float, default=o.beta,
-                   help="image weight relative to the geometric gradient (default %(default)s)")
-    p.add_argument("--seen", type=float, default=o.seen,
-                   help="image weight where the data covers the surface, relative to where it does not "
-                        "(default %(default)s)")
-    p.add_argument("--lam", "--image-smooth", type=float, default=o.lam,
-                   help="lambda of the (I + lambda L)^-1 smoothing of the image gradient (default %(default)s; "
-                        "0: off)")
-    p.add_argument("--alpha", type=float, default=o.alpha,
-                   help="ARAP weight relative to the previous frame (default %(default)s)")
-    p.add_argument("--alpha-rest", type=float, default=o.alpha_rest,
-                   help="ARAP weight relative to the template: against folds (default %(default)s; 0: off)")
-    p.add_argument("--fold", type=float, default=o.fold,
-                   help="weight of the barrier on limit normals that turned by more than 60 degrees since the "
-                        "previous frame (default %(default)s; 0: off)")
-    p.add_argument("--reach", type=int, default=o.reach,
-                   help="IMLS reaches h0 * 2^REACH from a sample; farther ones are not pulled "
-                        "(default %(default)s)")
-    p.add_argument("--samples", choices=SAMPLE_MODES, default=o.samples, help=SAMPLES_HELP)
-    p.add_argument("--cover", type=float, default=o.cover,
-                   help="coverage weight: data points pull their nearest samples (default %(default)s; 0: off)")
-    p.add_argument("--loss", choices=["l1", "l2"], default=o.loss,
-                   help="pixel loss of the rendered rig: mean absolute (l1, default) or mean squared (l2) "
-                        "difference between the render and the target render")
-    p.add_argument("--mode", choices=["shading", "silhouette"], default=o.mode,
-                   help="shaded images (default) or silhouettes only, for the rendered rig")
-    p.add_argument("--iterations", dest="iterations", type=int, metavar="N", default=o.iterations,
-                   help="iterations per frame (default %(default)s)")
-    p.add_argument("--first-iterations", type=int, metavar="N", default=o.first_iterations,
-                   help="iterations of the first frame, from the template (default %(default)s)")
-    p.add_argument("--albedo-lr", type=float, default=o.albedo_lr,
-                   help="albedo step on the first frame (photos; default %(default)s)")
-    p.add_argument("--albedo-refine", type=float, default=o.albedo_refine,
-                   help="albedo step of later frames relative to --albedo-lr (default %(default)s; 0: kept)")
-    p.add_argument("--points", dest="n_points", type=int, metavar="N", default=o.n_points,
-                   help="points sampled on every mesh frame for the geometric terms (default %(default)s); "
-                        "point-cloud frames are used as they are")
-    exclusive = p.add_mutually_exclusive_group()
-    exclusive.add_argument("--no-image", action="store_true", help="geometric terms only (baseline)")
-    exclusive.add_argument("--image-only", action="store_true", help="image term (+ ARAP) only (baseline)")
-    p.add_argument("--deterministic", action="store_true",
-                   help="bit-reproducible image term: the reverse render runs on one thread (slower)")
-    p.add_argument("--seed", type=int, default=o.seed, help=SEED_HELP.format(", of the views and of the "
-                                                                                "frames' samples"))
 
 
 BATCH_DESCRIPTION = ("Fit every INPUT like `mi-loop fit INPUT -o OUTDIR/<name>/` (with --sequences: like "
@@ -308,9 +277,7 @@ def _batch_parser(sub, common) -> None:
         p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
                        help="sequences (directories of frames or NPZ files) or quoted globs of them"
                        if sequences else "point-cloud or mesh files (as for fit) or quoted globs of them")
-        p.add_argument("-o", "--output", required=True, type=Path,
-                       help="output directory: OUTDIR/<input name>/ per input, OUTDIR/summary.csv, "
-                            "OUTDIR/report.html")
+        _output(p, "output directory: OUTDIR/<input name>/ per input, OUTDIR/summary.csv, OUTDIR/report.html")
         where = p.add_mutually_exclusive_group()
         where.add_argument("--scheduler", metavar="ADDRESS",
                            help="run on a running Dask cluster: its scheduler's address (tcp://host:port) or "
@@ -322,9 +289,7 @@ def _batch_parser(sub, common) -> None:
                             "fit-sequence's (see fit-batch --sequences --help)")
         if sequences:
             _frames_option(p, "; of every sequence")
-            _sequence_options(p)
-        else:
-            _fit_options(p)
+        add_options(p, SequenceOptions if sequences else FitOptions, {"template": _template})
         _view_level(p, "sequence" if sequences else "fit")
         _variant(p)
         return p
@@ -335,19 +300,7 @@ def _batch_parser(sub, common) -> None:
                          switch=("--sequences", sequences), **kwargs), False)
 
 
-def _frame_range(text: str):
-    from mi_loop.io.frames import frame_range
-
-    try:
-        return frame_range(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
-
-
 def _images_parser(sub, common) -> None:
-    from mi_loop.render.photo import INTEGRATORS
-
-    o = ImageFitOptions
     p = sub.add_parser("fit-images", parents=[common],
                        help="fit a Loop surface and its albedo to calibrated photos (transforms.json)",
                        description="Shape and per-control-vertex albedo from photos with known cameras "
@@ -355,42 +308,20 @@ def _images_parser(sub, common) -> None:
                                    "renderer: silhouettes (the masks: alpha or mask_path) and shading, "
                                    "coarse to fine by exact Loop refinement.")
     p.add_argument("capture", type=Path, help="transforms.json of the photos")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output directory")
-    p.add_argument("--vertices", dest="n_vertices", type=int, metavar="N", default=o.n_vertices,
-                   help="most control vertices after the refinements (default %(default)s)")
-    p.add_argument("--init", default=o.init, metavar="hull|sphere|MESH",
-                   help="start shape: a template of the visual hull of the masks (hull, default), an "
-                        "icosphere in the hull's box (sphere), or a control mesh file")
-    p.add_argument("--refinements", type=int, default=o.refinements,
-                   help="exact Loop refinements of the control mesh, coarse to fine (default %(default)s)")
-    p.add_argument("--res", dest="resolution", type=int, metavar="R", default=o.resolution,
-                   help="longest image side at the finest stage (default: the photos' own; coarser "
-                        "stages halve it)")
-    p.add_argument("--spp", type=int, default=o.spp, help="samples per pixel of the renders (default %(default)s)")
-    p.add_argument("--iterations", type=int, metavar="N", default=o.iterations,
-                   help="most iterations, all stages together (default %(default)s)")
-    p.add_argument("--views-per-iteration", type=int, metavar="K", default=o.views_per_iteration,
-                   help="photos rendered per iteration (default %(default)s)")
-    p.add_argument("--emitters", type=Path, metavar="F",
-                   help="Mitsuba XML file holding only the capture's emitters (default: a uniform white "
-                        "environment of radiance 1)")
-    p.add_argument("--lr", type=float, default=o.lr,
-                   help="step size relative to the visual hull's box diagonal (default %(default)s)")
-    p.add_argument("--lam", type=float, default=o.lam,
-                   help="lambda of the (I + lambda L) smooth parameterisation (default %(default)s; 0: plain)")
-    p.add_argument("--laplacian", "--smooth", type=float, default=o.laplacian,
-                   help="weight of the cage's Laplacian term (default %(default)s; 0: off)")
-    p.add_argument("--albedo", type=float, default=o.albedo, help="start albedo, grey (default %(default)s)")
-    p.add_argument("--fixed-albedo", dest="albedo_lr", action="store_const", const=0.0, default=o.albedo_lr,
-                   help="keep the albedo at --albedo instead of estimating it")
-    p.add_argument("--integrator", choices=INTEGRATORS, default=o.integrator,
-                   help="differentiable integrator (default %(default)s)")
-    p.add_argument("--deterministic", action="store_true",
-                   help="bit-reproducible runs: the reverse renders run on one thread (slower)")
-    p.add_argument("--seed", type=int, default=o.seed,
-                   help="random seed of the view order and the renders (default 0)")
+    _output(p)
+    _emitters(p)
+    add_options(p, ImageFitOptions)
     _view_level(p, "fit")
     _variant(p)
+
+
+def _frame_range(text: str):
+    from mi_loop.io.frames import frame_range
+
+    try:
+        return frame_range(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
 
 
 def _compare_epilog() -> str:
@@ -429,9 +360,8 @@ def _export_parser(sub, common) -> None:
                         f"for fits and {VIEW_LEVELS['sequence']} for sequences, as limit.glb and sequence.glb; "
                         f"obj and ply {LIMIT_LEVELS['fit']} and {LIMIT_LEVELS['sequence']}, as limit.ply and "
                         "limit/NNNN.ply)")
-    p.add_argument("-o", "--output", type=Path, metavar="PATH",
-                   help="the file to write (its suffix the format's), or for a sequence's obj / ply frames a "
-                        "directory (default: in OUT/export/)")
+    _output(p, "the file to write (its suffix the format's), or for a sequence's obj / ply frames a directory "
+               "(default: in OUT/export/)", required=False, metavar="PATH")
     p.add_argument("--fps", type=float,
                    help="frame rate of a sequence's glb (default: the run's, from sequence.json, else 24)")
 
@@ -445,13 +375,13 @@ def build_parser() -> argparse.ArgumentParser:
     common = _common(top=False)
 
     demo = sub.add_parser("demo", parents=[common], help="render the limit surface of a procedural control mesh")
-    demo.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    _output(demo)
     demo.add_argument("--shape", choices=sorted(datasets.CONTROL_MESHES), default="blob")
     _render_options(demo)
 
     render = sub.add_parser("render", parents=[common], help="render the limit surface of a control mesh file")
     render.add_argument("control", type=Path, help="control mesh (PLY, OBJ or OFF)")
-    render.add_argument("-o", "--output", required=True, type=Path, help="PNG file to write")
+    _output(render, "PNG file to write")
     render.add_argument("--creases", default="",
                         help="sharp edges as vertex pairs, optional sharpness (default inf), e.g. '0 1, 1 2 2.5'; "
                              "default: the creases of a PLY control mesh (its edge element)")
@@ -472,5 +402,5 @@ def build_parser() -> argparse.ArgumentParser:
 
     control = sub.add_parser("control", parents=[common], help="write a procedural control mesh")
     control.add_argument("name", choices=sorted(datasets.CONTROL_MESHES))
-    control.add_argument("-o", "--output", required=True, type=Path, help="PLY file to write")
+    _output(control, "PLY file to write")
     return parser

@@ -1,4 +1,4 @@
-"""The options of the fitting loops: one vocabulary, one default each, checked on construction.
+"""The options of the fitting loops: one vocabulary, one declaration per option, checked on construction.
 
 - :class:`FitOptions`: the static fit (:func:`mi_loop.fitting.static.fit`, ``mi-loop fit``);
 - :class:`SequenceOptions`: the frame-by-frame fit (:func:`mi_loop.fitting.sequence.fit_frame`,
@@ -6,20 +6,26 @@
 - :class:`ImageFitOptions`: shape and albedo from photos (:func:`mi_loop.fitting.images.fit_images`,
   ``mi-loop fit-images``).
 
-Every default lives here once: :func:`~mi_loop.fitting.static.fit`'s keyword
-arguments and the command line's defaults are read from these classes. A
-rejected value raises :class:`OptionError` (a :class:`ValueError`) whose
-message reads ``FitOptions(): expected alpha to be a finite number >= 0, got -1.0``;
+Every field is declared once, by :func:`option`: its default, the :class:`Rule`
+its values obey (which also says how the command line reads one), its help text
+and, where they are not the plain ``--`` + name with dashes, its flag, metavar,
+deprecated spellings and special command-line forms (:class:`Option`).
+:func:`~mi_loop.fitting.static.fit`'s defaults, ``__post_init__``'s checks and
+the whole ``mi-loop`` parser of these options (:mod:`mi_loop.app.parser`) are read
+from there. A rejected value raises :class:`OptionError` (a :class:`ValueError`)
+whose message reads ``FitOptions(): expected alpha to be a finite number >= 0, got -1.0``;
 it also carries the field, so the command line can name its flag instead.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import Field, dataclass, field, fields
 
 import numpy as np
 
 from mi_loop.errors import expected
+from mi_loop.render.images import INTEGRATORS
 from mi_loop.render.multiview import IMAGE_MODES, LOSSES
 
 __all__ = [
@@ -30,12 +36,19 @@ __all__ = [
     "SAMPLE_MODES",
     "FitOptions",
     "ImageFitOptions",
+    "Option",
     "OptionError",
+    "Rule",
     "SequenceOptions",
+    "declared",
+    "option",
+    "option_flag",
 ]
 
 #: Limit samples of the geometric terms: one per control vertex, a level-1 tessellation, random.
 SAMPLE_MODES = ("vertices", "level1", "random")
+#: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
+IMAGE_INITS = ("hull", "sphere")
 
 #: Defaults shared by both loops (one place each).
 N_VERTICES = 1000     # control vertices of the automatic template
@@ -73,6 +86,9 @@ class OptionError(ValueError):
         return OptionError(owner, self.name, self.what, self.got)
 
 
+# -- rules: what a field accepts -------------------------------------------------------
+
+
 def _is_int(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
@@ -81,42 +97,194 @@ def _is_real(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
-def _check(options, rules: dict) -> None:
-    """Check every field named in ``rules``: ``name -> (predicate, description)``."""
-    owner = type(options).__name__
-    for name, (ok, what) in rules.items():
-        value = getattr(options, name)
-        if not ok(value):
-            raise OptionError(owner, name, what, value)
+@dataclass(frozen=True)
+class Rule:
+    """What an option field accepts, said once for the class's check and for the command line.
+
+    Parameters
+    ----------
+    ok : callable
+        ``ok(value) -> bool``.
+    what : str
+        The accepted values, as :class:`OptionError` words them (``'a finite number >= 0'``).
+    parse : callable or None
+        How the command line reads one value (``float``, ``int``, ``str``); None: a
+        switch, the field a bool whose flag stores the opposite of its default.
+    choices : tuple, optional
+        The only values (the command line offers them as choices).
+
+    Examples
+    --------
+    >>> WEIGHT.ok(0.5), WEIGHT.ok(-1.0), WEIGHT.what
+    (True, False, 'a finite number >= 0')
+    >>> at_least(16).or_none("the photos' size").what
+    "an integer >= 16 (or None: the photos' size)"
+    """
+
+    ok: Callable[[object], bool]
+    what: str
+    parse: Callable[[str], object] | None = None
+    choices: tuple | None = None
+
+    def or_none(self, meaning: str | None = None) -> Rule:
+        """The same rule that also accepts None (``meaning``, if given, says what None does)."""
+        what = self.what if meaning is None else f"{self.what} (or None: {meaning})"
+        return Rule(lambda v: v is None or self.ok(v), what, self.parse, self.choices)
 
 
-def _weight(value) -> bool:
-    return _is_real(value) and math.isfinite(value) and value >= 0
+def at_least(low: int) -> Rule:
+    """An integer ``>= low``."""
+    return Rule(lambda v: _is_int(v) and v >= low, f"an integer >= {low}", int)
 
 
-def _positive_real(value) -> bool:
-    return _is_real(value) and math.isfinite(value) and value > 0
+def integers(low: int, high: int) -> Rule:
+    """An integer in ``low..high``."""
+    return Rule(lambda v: _is_int(v) and low <= v <= high, f"an integer in {low}..{high}", int)
 
 
-def _count(value) -> bool:
-    return _is_int(value) and value >= 1
+def interval(low: float, high: float, open_low: bool = False) -> Rule:
+    """A number in ``[low, high]`` (``(low, high]`` when ``open_low``)."""
+    above = (lambda v: v > low) if open_low else (lambda v: v >= low)
+    return Rule(lambda v: _is_real(v) and above(v) and v <= high,
+                f"a number in {'(' if open_low else '['}{low:g}, {high:g}]", float)
 
 
-def _seed(value) -> bool:
-    return _is_int(value) and value >= 0
+def one_of(choices: tuple, what: str | None = None) -> Rule:
+    """One of ``choices`` (strings)."""
+    return Rule(lambda v: v in choices, what or f"one of {choices}", str, tuple(choices))
 
 
-def _flag(value) -> bool:
-    return isinstance(value, (bool, np.bool_))
+WEIGHT = Rule(lambda v: _is_real(v) and math.isfinite(v) and v >= 0, "a finite number >= 0", float)
+POSITIVE = Rule(lambda v: _is_real(v) and math.isfinite(v) and v > 0, "a finite number > 0", float)
+COUNT = at_least(1)
+SEED = at_least(0)
+FLAG = Rule(lambda v: isinstance(v, (bool, np.bool_)), "True or False")
 
 
-WEIGHT = (_weight, "a finite number >= 0")
-COUNT = (_count, "an integer >= 1")
-SEED = (_seed, "an integer >= 0")
-FLAG = (_flag, "True or False")
-N_VERTICES_RULE = (lambda v: _is_int(v) and v >= 4, "an integer >= 4")
-SAMPLES_RULE = (lambda v: v in SAMPLE_MODES, f"one of {SAMPLE_MODES}")
-FEATURES_RULE = (lambda v: v in ("auto", "off"), "'auto' or 'off'")
+# -- the declaration of one field ------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Option:
+    """How an option field is checked and spelled on the command line (a field's ``metadata['option']``).
+
+    Parameters
+    ----------
+    rule : Rule
+        The accepted values and how the command line reads one.
+    help : str
+        The command line's help text (``%(default)s``: the field's default).
+    flag : str, optional
+        The flag, where it is not ``--`` + the name with dashes (``--vertices``).
+    metavar : str, optional
+        The value's name in the help (default: argparse's).
+    deprecated : tuple of str
+        Old spellings of the flag (of a field that takes a value), accepted
+        for one release with a warning and hidden from the help.
+    exclusive : str, optional
+        Name of a mutually exclusive group of flags (``'template'``: ``--vertices``
+        or ``--template``; ``'terms'``: ``--no-image`` or ``--image-only``).
+    presets : tuple of (flag, value, help)
+        More flags that store a fixed value in the field (``--fixed-albedo``: 0),
+        exclusive with the flag.
+    capped_by : str, optional
+        Another field; the command line's default is the field's default, but
+        never more than that field's value (``views_per_iteration`` by ``views``).
+    paths : bool
+        The flag also takes a file, which the command passes on beside the
+        options; the field then keeps its default (``fit-images --init MESH``).
+    """
+
+    rule: Rule
+    help: str
+    flag: str | None = None
+    metavar: str | None = None
+    deprecated: tuple = ()
+    exclusive: str | None = None
+    presets: tuple = ()
+    capped_by: str | None = None
+    paths: bool = False
+
+
+def option(default, *, rule: Rule, help: str, flag: str | None = None, metavar: str | None = None,
+           deprecated: tuple = (), exclusive: str | None = None, presets: tuple = (), capped_by: str | None = None,
+           paths: bool = False):
+    """Declare an option field: its default, rule, help and command-line spelling.
+
+    Parameters
+    ----------
+    default : object
+        The default (immutable).
+    rule : Rule
+        The accepted values.
+    help : str
+        The command line's help text.
+    flag, metavar, deprecated, exclusive, presets, capped_by, paths
+        As in :class:`Option`.
+
+    Returns
+    -------
+    dataclasses.Field
+        With the :class:`Option` as ``metadata['option']``.
+    """
+    declaration = Option(rule, help, flag, metavar, tuple(deprecated), exclusive, tuple(presets), capped_by, paths)
+    return field(default=default, metadata={"option": declaration})
+
+
+def declared(cls) -> list[tuple[Field, Option]]:
+    """Return every field of an option class with its declaration, in the class's order.
+
+    Parameters
+    ----------
+    cls : type
+        :class:`FitOptions`, :class:`SequenceOptions`, :class:`ImageFitOptions` (or a subclass).
+
+    Returns
+    -------
+    list of (dataclasses.Field, Option)
+    """
+    return [(f, f.metadata["option"]) for f in fields(cls)]
+
+
+def option_flag(f: Field) -> str:
+    """Return the command-line flag of an option field.
+
+    Parameters
+    ----------
+    f : dataclasses.Field
+        A field of an option class.
+
+    Returns
+    -------
+    str
+        Its declared flag, else ``--`` and its name with dashes.
+
+    Examples
+    --------
+    >>> [option_flag(f) for f in fields(FitOptions)][:2]
+    ['--vertices', '--alpha']
+    """
+    return f.metadata["option"].flag or "--" + f.name.replace("_", "-")
+
+
+def _check(options) -> None:
+    """Check every field against its rule; the first rejected one raises :class:`OptionError`."""
+    for f, declaration in declared(type(options)):
+        value = getattr(options, f.name)
+        if not declaration.rule.ok(value):
+            raise OptionError(type(options).__name__, f.name, declaration.rule.what, value)
+
+
+# -- help texts that several fields share ----------------------------------------------
+
+SAMPLES_HELP = ("limit samples of the distance terms: 'level1' (default) the points of a level-1 "
+                "tessellation, about 4 per control vertex (closer fits); 'vertices' one per control vertex "
+                "(its limit point: faster, the thesis's choice); 'random' four uniformly random points per "
+                "control face, drawn once from --seed")
+SEED_HELP = "random seed: of {} (default %(default)s); {}the same seed, input and thread count give the same result"
+COVER_HELP = "weight of the coverage term: data points pull their nearest limit samples (default %(default)s; 0: off)"
+TEMPLATE_HELP = "control vertices of the automatic template (default %(default)s)"
+SPP_HELP = "samples per pixel of the differentiable renders (default %(default)s)"
 
 
 @dataclass
@@ -163,23 +331,32 @@ class FitOptions:
         ``'off'``: the smooth pipeline. Point clouds have no features here.
     """
 
-    n_vertices: int = N_VERTICES
-    alpha: float | None = None
-    h0: float | None = None
-    samples: str = SAMPLES
-    iterations: int = 400
-    tolerance: float = 5e-3
-    cover: float = COVER
-    seed: int = 0
-    fold: float = FOLD
-    features: str = "auto"
+    n_vertices: int = option(N_VERTICES, rule=at_least(4), help=TEMPLATE_HELP, flag="--vertices", metavar="N",
+                             exclusive="template")
+    alpha: float | None = option(None, rule=WEIGHT.or_none(),
+                                 help="ARAP weight (default: 0.001 on clean data; on noisy data the best of 0.001, "
+                                      "0.01, 0.1, 1 on a tenth of the points held out of the fit)")
+    h0: float | None = option(None, rule=POSITIVE.or_none("automatic"),
+                              help="IMLS radius in the unit box (default: from the point spacing)")
+    samples: str = option(SAMPLES, rule=one_of(SAMPLE_MODES), help=SAMPLES_HELP)
+    iterations: int = option(400, rule=COUNT, metavar="N",
+                             help="most iterations of the fit; it stops earlier when --tolerance says it has "
+                                  "converged (default %(default)s)")
+    tolerance: float = option(5e-3, rule=WEIGHT,
+                              help="relative improvement of the best energy below which the step halves and the "
+                                   "fit stops before --iterations (default %(default)s)")
+    cover: float = option(COVER, rule=WEIGHT, help=COVER_HELP)
+    seed: int = option(0, rule=SEED, help=SEED_HELP.format("the automatic template's sampling and of --samples "
+                                                           "random", ""))
+    fold: float = option(FOLD, rule=WEIGHT,
+                         help="weight of the fold barrier on limit normals turned by more than 60 degrees from the "
+                              "nearest data normals (default %(default)s; 0: off)")
+    features: str = option("auto", rule=one_of(("auto", "off"), "'auto' or 'off'"),
+                           help="for a mesh input, keep its sharp features (edges above 40 degrees) as creases of the "
+                                "control mesh (default %(default)s; point clouds have none here)")
 
     def __post_init__(self):
-        _check(self, {"n_vertices": N_VERTICES_RULE, "alpha": (lambda v: v is None or _weight(v), WEIGHT[1]),
-                      "fold": WEIGHT,
-                      "h0": (lambda v: v is None or _positive_real(v), "a finite number > 0 (or None: automatic)"),
-                      "samples": SAMPLES_RULE, "iterations": COUNT, "tolerance": WEIGHT,
-                      "cover": WEIGHT, "seed": SEED, "features": FEATURES_RULE})
+        _check(self)
 
     @property
     def terms(self) -> list:
@@ -238,7 +415,8 @@ class SequenceOptions:
     geometric, image : bool
         IMLS + coverage terms (False: image only, ARAP kept); the image term.
     iterations : int
-        Iterations per frame (the first half with stiff ARAP).
+        Most iterations of each frame after the first (the first half with
+        stiff ARAP); a frame stops earlier by ``tolerance``.
     first_iterations : int
         Iterations of the first frame (from the template).
     stiff_factor : float
@@ -261,54 +439,89 @@ class SequenceOptions:
         Build the automatic template by screened Poisson even from a mesh frame.
     deterministic : bool
         Bit-reproducible image term: the reverse render runs on one thread (slower).
+    tolerance : float
+        Relative improvement of the frame's energy below which a frame stops
+        before ``iterations``; 0 (default): every frame runs all its iterations.
     """
 
-    alpha: float = 0.01
-    alpha_rest: float = 0.01
-    fold: float = 1.0
-    beta: float = 10.0
-    seen: float = 0.1
-    lam: float = 10.0
-    reach: int = 2
-    views: int = 20
-    views_per_iteration: int = 2
-    image_every: int = 6
-    resolution: int = 96
-    spp: int = 4
-    target_spp: int = 32
-    level: int = 1
-    loss: str = "l1"
-    mode: str = "shading"
-    geometric: bool = True
-    image: bool = True
-    iterations: int = 200
-    first_iterations: int = 400
-    stiff_factor: float = 100.0
-    cover: float = COVER
-    albedo_lr: float = 0.02
-    albedo_refine: float = 0.1
-    seed: int = 0
-    n_vertices: int = N_VERTICES
-    samples: str = SAMPLES
-    n_points: int = 20_000
-    poisson_template: bool = False
-    deterministic: bool = False
+    alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
+    alpha_rest: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the template: against folds "
+                                                       "(default %(default)s; 0: off)")
+    fold: float = option(1.0, rule=WEIGHT,
+                         help="weight of the fold barrier on limit normals turned by more than 60 degrees since the "
+                              "previous frame (default %(default)s; 0: off)")
+    beta: float = option(10.0, rule=WEIGHT,
+                         help="image weight relative to the geometric gradient (default %(default)s)")
+    seen: float = option(0.1, rule=interval(0, 1),
+                         help="image weight where the data covers the surface, relative to where it does not "
+                              "(default %(default)s)")
+    lam: float = option(10.0, rule=WEIGHT, deprecated=("--image-smooth",),
+                        help="lambda of the (I + lambda L)^-1 smoothing over the cage of the image gradient "
+                             "(default %(default)s; 0: off)")
+    reach: int = option(2, rule=integers(0, 10), metavar="REACH",
+                        help="IMLS reaches h0 * 2^REACH from a sample; farther ones are not pulled "
+                             "(default %(default)s)")
+    views: int = option(20, rule=COUNT,
+                        help="cameras around the subject for mesh frames without --images (default %(default)s)")
+    views_per_iteration: int = option(2, rule=COUNT, metavar="K", capped_by="views",
+                                      help="views rendered per image refresh, at most --views (default %(default)s, "
+                                           "or --views if fewer)")
+    image_every: int = option(6, rule=COUNT, metavar="N",
+                              help="iterations between image refreshes; the latest image gradient is added to every "
+                                   "step (default %(default)s)")
+    resolution: int = option(96, rule=COUNT, flag="--res", metavar="R",
+                             help="image width and height of the rendered rig, in pixels (default %(default)s; "
+                                  "photos keep theirs)")
+    spp: int = option(4, rule=COUNT, help=SPP_HELP)
+    target_spp: int = option(32, rule=COUNT, help="samples per pixel of the rig's target renders (default %(default)s)")
+    level: int = option(1, rule=integers(0, 6), metavar="L",
+                        help="tessellation level of the rendered limit surface, 4**L triangles per control face "
+                             "(default %(default)s)")
+    loss: str = option("l1", rule=one_of(LOSSES),
+                       help="pixel loss of the rendered rig: mean absolute (l1, default) or mean squared (l2) "
+                            "difference between the render and the target render")
+    mode: str = option("shading", rule=one_of(IMAGE_MODES),
+                       help="images of the rendered rig: shaded (shading, default) or silhouettes only "
+                            "(silhouette)")
+    geometric: bool = option(True, rule=FLAG, flag="--image-only", exclusive="terms",
+                             help="image term (+ ARAP) only, no IMLS or coverage (baseline)")
+    image: bool = option(True, rule=FLAG, flag="--no-image", exclusive="terms",
+                         help="geometric terms only (baseline)")
+    iterations: int = option(200, rule=COUNT, metavar="N",
+                             help="most iterations of each frame after the first; a frame stops earlier when "
+                                  "--tolerance says it has converged (default %(default)s)")
+    first_iterations: int = option(400, rule=COUNT, metavar="N",
+                                   help="iterations of the first frame, from the template (default %(default)s)")
+    stiff_factor: float = option(100.0, rule=WEIGHT,
+                                 help="factor of the ARAP weights in the first half of a frame's iterations "
+                                      "(default %(default)s)")
+    cover: float = option(COVER, rule=WEIGHT, help=COVER_HELP)
+    albedo_lr: float = option(0.02, rule=WEIGHT,
+                              help="Adam step of the per-control-vertex albedo on the first frame (with --images; "
+                                   "default %(default)s; 0: not estimated)")
+    albedo_refine: float = option(0.1, rule=WEIGHT,
+                                  help="albedo step of later frames relative to --albedo-lr (default %(default)s; "
+                                       "0: kept from the first frame)")
+    seed: int = option(0, rule=SEED, help=SEED_HELP.format(
+        "the automatic template's sampling and of --samples random, of the views and of the frames' samples",
+        "with --no-image or --deterministic "))
+    n_vertices: int = option(N_VERTICES, rule=at_least(4), help=TEMPLATE_HELP, flag="--vertices", metavar="N",
+                             exclusive="template")
+    samples: str = option(SAMPLES, rule=one_of(SAMPLE_MODES), help=SAMPLES_HELP)
+    n_points: int = option(20_000, rule=COUNT, flag="--points", metavar="N",
+                           help="points sampled on every mesh frame for the geometric terms (default %(default)s); "
+                                "point-cloud frames are used as they are")
+    poisson_template: bool = option(False, rule=FLAG, help="build the automatic template by screened Poisson even "
+                                                           "when the first frame is a mesh")
+    deterministic: bool = option(False, rule=FLAG, help="bit-reproducible image term: the reverse render runs on "
+                                                        "one thread (slower)")
+    tolerance: float = option(0.0, rule=WEIGHT,
+                              help="relative improvement of the frame's energy below which a frame stops before "
+                                   "--iterations (default %(default)s: every frame runs all its iterations)")
 
     def __post_init__(self):
-        _check(self, {"alpha": WEIGHT, "alpha_rest": WEIGHT, "fold": WEIGHT, "beta": WEIGHT,
-                      "lam": WEIGHT, "cover": WEIGHT,
-                      "stiff_factor": WEIGHT, "albedo_lr": WEIGHT, "albedo_refine": WEIGHT,
-                      "seen": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
-                      "reach": (lambda v: _is_int(v) and 0 <= v <= 10, "an integer in 0..10"),
-                      "image_every": COUNT, "first_iterations": COUNT, "views": COUNT,
-                      "resolution": COUNT, "spp": COUNT, "target_spp": COUNT,
-                      "level": (lambda v: _is_int(v) and 0 <= v <= 6, "an integer in 0..6"),
-                      "loss": (lambda v: v in LOSSES, f"one of {LOSSES}"),
-                      "mode": (lambda v: v in IMAGE_MODES, f"one of {IMAGE_MODES}"),
-                      "geometric": FLAG, "image": FLAG, "poisson_template": FLAG, "deterministic": FLAG,
-                      "iterations": COUNT, "seed": SEED,
-                      "n_vertices": N_VERTICES_RULE, "samples": SAMPLES_RULE, "n_points": COUNT})
-        if not (_is_int(self.views_per_iteration) and 1 <= self.views_per_iteration <= self.views):
+        _check(self)
+        if self.views_per_iteration > self.views:
             raise OptionError("SequenceOptions", "views_per_iteration",
                               f"an integer in [1, views={self.views}]", self.views_per_iteration)
         if not (self.geometric or self.image):
@@ -344,10 +557,6 @@ class SequenceOptions:
                           deterministic=self.deterministic)
 
 
-#: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
-IMAGE_INITS = ("hull", "sphere")
-
-
 @dataclass
 class ImageFitOptions:
     """Parameters of :func:`mi_loop.fitting.images.fit_images` and ``mi-loop fit-images``.
@@ -370,7 +579,7 @@ class ImageFitOptions:
         Samples per pixel of the differentiable renders.
     iterations : int
         Most iterations in all (split evenly between the stages; a stage ends
-        earlier when its loss stalls).
+        earlier when its loss stalls, by ``tolerance``).
     views_per_iteration : int
         Photos rendered per iteration (a seeded sweep through all of them).
     lr : float
@@ -399,39 +608,49 @@ class ImageFitOptions:
         Bit-reproducible runs: reverse renders on one thread (slower).
     """
 
-    n_vertices: int = 900
-    init: str = "hull"
-    refinements: int = 1
-    resolution: int | None = None
-    spp: int = 4
-    iterations: int = 300
-    views_per_iteration: int = 2
-    lr: float = 0.01
-    lr_decay: float = 1.0
-    albedo_lr: float = 0.02
-    lam: float = 20.0
-    laplacian: float = 0.05
-    albedo: float = 0.5
-    tolerance: float = 0.005
-    triangles: int = 20_000
-    integrator: str = "direct_projective"
-    seed: int = 0
-    deterministic: bool = False
+    n_vertices: int = option(900, rule=at_least(4), flag="--vertices", metavar="N",
+                             help="most control vertices, after --refinements exact Loop steps (default %(default)s)")
+    init: str = option("hull", rule=one_of(IMAGE_INITS), metavar="hull|sphere|MESH", paths=True,
+                       help="start shape: a template of the visual hull of the masks (hull, default), an icosphere "
+                            "in the hull's box (sphere), or a control mesh file")
+    refinements: int = option(1, rule=integers(0, 4), metavar="N",
+                              help="exact Loop refinements of the control mesh, coarse to fine (default %(default)s)")
+    resolution: int | None = option(None, rule=at_least(16).or_none("the photos' size"), flag="--res", metavar="R",
+                                    help="longest image side at the finest stage, in pixels (default: the photos' "
+                                         "own; coarser stages halve it)")
+    spp: int = option(4, rule=COUNT, help=SPP_HELP)
+    iterations: int = option(300, rule=COUNT, metavar="N",
+                             help="most iterations of all stages together; a stage stops earlier when --tolerance "
+                                  "says it has converged (default %(default)s)")
+    views_per_iteration: int = option(2, rule=COUNT, metavar="K",
+                                      help="photos rendered per iteration (default %(default)s)")
+    lr: float = option(0.01, rule=POSITIVE,
+                       help="step size relative to the visual hull's box diagonal (default %(default)s)")
+    lr_decay: float = option(1.0, rule=interval(0, 1, open_low=True),
+                             help="step at the end of each stage relative to its start (default %(default)s)")
+    albedo_lr: float = option(0.02, rule=WEIGHT,
+                              help="Adam step of the per-control-vertex albedo (default %(default)s; 0: kept at "
+                                   "--albedo)",
+                              presets=(("--fixed-albedo", 0.0, "keep the albedo at --albedo (--albedo-lr 0)"),))
+    lam: float = option(20.0, rule=WEIGHT,
+                        help="lambda of the (I + lambda L)^-1 smoothing over the cage of every step, LargeSteps' "
+                             "parameterisation (default %(default)s; 0: off)")
+    laplacian: float = option(0.05, rule=WEIGHT, deprecated=("--smooth",),
+                              help="weight of the cage's Laplacian term, which keeps control vertices spread "
+                                   "(default %(default)s; 0: off)")
+    albedo: float = option(0.5, rule=interval(0, 1), help="start albedo, grey (default %(default)s)")
+    tolerance: float = option(0.005, rule=WEIGHT, deprecated=("--stall",),
+                              help="relative fall of the mean loss over two sweeps of the photos below which a stage "
+                                   "stops, after half its iterations (default %(default)s; 0: never)")
+    triangles: int = option(20_000, rule=COUNT, metavar="N",
+                            help="rendered triangles per stage, roughly: sets the tessellation level "
+                                 "(default %(default)s)")
+    integrator: str = option("direct_projective", rule=one_of(INTEGRATORS),
+                             help="differentiable integrator (default %(default)s)")
+    seed: int = option(0, rule=SEED, help=SEED_HELP.format("the view order and of the renders",
+                                                           "with --deterministic "))
+    deterministic: bool = option(False, rule=FLAG,
+                                 help="bit-reproducible fit: the reverse renders run on one thread (slower)")
 
     def __post_init__(self):
-        from mi_loop.render.photo import INTEGRATORS
-
-        _check(self, {"n_vertices": N_VERTICES_RULE,
-                      "init": (lambda v: v in IMAGE_INITS, f"one of {IMAGE_INITS}"),
-                      "refinements": (lambda v: _is_int(v) and 0 <= v <= 4, "an integer in 0..4"),
-                      "resolution": (lambda v: v is None or (_is_int(v) and v >= 16),
-                                     "an integer >= 16 (or None: the photos' size)"),
-                      "spp": COUNT, "iterations": COUNT, "views_per_iteration": COUNT,
-                      "lr": (_positive_real, "a finite number > 0"),
-                      "albedo_lr": WEIGHT,
-                      "lr_decay": (lambda v: _is_real(v) and 0 < v <= 1, "a number in (0, 1]"),
-                      "lam": WEIGHT, "laplacian": WEIGHT,
-                      "albedo": (lambda v: _is_real(v) and 0 <= v <= 1, "a number in [0, 1]"),
-                      "tolerance": WEIGHT, "triangles": COUNT,
-                      "integrator": (lambda v: v in INTEGRATORS, f"one of {INTEGRATORS}"),
-                      "seed": SEED, "deterministic": FLAG})
+        _check(self)

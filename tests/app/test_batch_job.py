@@ -303,7 +303,7 @@ def test_the_help_lists_fits_options_or_with_sequences_fit_sequences(capsys):
             main(["fit-batch", *extra, "--help"])
         texts[bool(extra)] = " ".join(capsys.readouterr().out.split())
     assert "--tolerance" in texts[False] and "--views" not in texts[False]
-    assert "--views VIEWS" in texts[True] and "--tolerance" not in texts[True] and "--resume " not in texts[True]
+    assert "--views VIEWS" in texts[True] and "--features" not in texts[True] and "--resume " not in texts[True]
     assert "--workers N worker processes of the local cluster, one thread each (default 2)" in texts[False]
     assert "Not taken with --sequences" in texts[True]
 

@@ -162,3 +162,75 @@ def test_an_unknown_variant_is_refused_with_the_usable_ones(tmp_path, capsys, co
                     "got 'scalar_rgb'")
     assert "llvm_ad_rgb" in line
     assert list(tmp_path.iterdir()) == []                                   # refused before any work
+
+
+# -- options_from_args: the special forms the fields' declarations ask for ----------------------------
+
+
+def parsed(*argv):
+    from mi_loop.app.parser import build_parser
+
+    return build_parser().parse_args(list(argv))
+
+
+def test_fixed_albedo_is_albedo_lr_zero_and_excludes_albedo_lr(capsys):
+    from mi_loop.app.cli import options_from_args
+    from mi_loop.fitting.options import ImageFitOptions
+
+    base = ["fit-images", "t.json", "-o", "o"]
+    assert options_from_args(ImageFitOptions, parsed(*base, "--fixed-albedo"), "fit-images").albedo_lr == 0.0
+    assert options_from_args(ImageFitOptions, parsed(*base, "--albedo-lr", "0.3"), "fit-images").albedo_lr == 0.3
+    assert options_from_args(ImageFitOptions, parsed(*base), "fit-images").albedo_lr == ImageFitOptions.albedo_lr
+    with pytest.raises(SystemExit) as info:
+        main([*base, "--albedo-lr", "0.3", "--fixed-albedo"])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.endswith("error: argument --fixed-albedo: not allowed with argument --albedo-lr\n")
+
+
+@pytest.mark.parametrize("command", [["fit-sequence", "f.npz"], ["fit-batch", "--sequences", "s.npz"]])
+def test_no_image_and_image_only_turn_one_term_off_and_exclude_each_other(command, capsys):
+    from mi_loop.app.cli import options_from_args
+    from mi_loop.fitting.options import SequenceOptions
+
+    def terms(*extra):
+        options = options_from_args(SequenceOptions, parsed(*command, "-o", "o", *extra), command[0])
+        return options.geometric, options.image
+
+    assert (terms(), terms("--no-image"), terms("--image-only")) == ((True, True), (True, False), (False, True))
+    with pytest.raises(SystemExit) as info:
+        main([*command, "-o", "o", "--no-image", "--image-only"])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.endswith("error: argument --image-only: not allowed with argument --no-image\n")
+
+
+@pytest.mark.parametrize("command", [["fit", "a.xyz"], ["fit-sequence", "f.npz"], ["fit-batch", "a.xyz"],
+                                     ["fit-batch", "--sequences", "s.npz"]])
+def test_vertices_and_template_exclude_each_other(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([*command, "-o", "o", "--vertices", "50", "--template", "t.ply"])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.endswith("error: argument --template: not allowed with argument --vertices\n")
+    assert parsed(*command, "-o", "o", "--template", "t.ply").n_vertices == 1000      # the default, ignored
+
+
+def test_poisson_template_and_template_exclude_each_other_in_fit_batch_sequences(tmp_path, capsys):
+    line = one_line_error(capsys, ["fit-batch", "--sequences", str(tmp_path / "s.npz"), "-o", str(tmp_path / "o"),
+                                   "--template", "t.ply", "--poisson-template"])
+    assert line == ("mi-loop: error: fit-batch --poisson-template: expected no --template (it builds the template), "
+                    "got --template 't.ply'")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_init_takes_a_shape_or_a_mesh_file_which_leaves_the_option_at_its_default(tmp_path, capsys):
+    from mi_loop.app.cli import options_from_args
+    from mi_loop.fitting.options import ImageFitOptions
+
+    def init(value):
+        return options_from_args(ImageFitOptions, parsed("fit-images", "t.json", "-o", "o", "--init", value),
+                                 "fit-images").init
+
+    assert (init("sphere"), init("hull"), init("start.ply")) == ("sphere", "hull", ImageFitOptions.init)
+    line = one_line_error(capsys, ["fit-images", str(tmp_path / "t.json"), "-o", str(tmp_path / "o"),
+                                   "--init", str(tmp_path / "nosuch.ply")])
+    assert line == ("mi-loop: error: fit-images --init: expected sphere, hull or an existing control mesh file, "
+                    f"got '{tmp_path / 'nosuch.ply'}'")

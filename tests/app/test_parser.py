@@ -1,13 +1,55 @@
-"""The ``mi-loop`` argument parser (mi_loop.app.parser): usage errors, global flags, defaults, help texts."""
+"""The ``mi-loop`` argument parser (mi_loop.app.parser): usage errors, global flags, defaults, help texts.
+
+The option flags are generated from the fields' declarations (mi_loop.fitting.options):
+every field's flag, default, type, choices and help are checked against its
+declaration in every command that takes it, and every rejected value against its
+flag-named message.
+"""
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import re
 
 import pytest
 
-from mi_loop.app.cli import main
-from mi_loop.app.parser import build_parser
-from mi_loop.fitting.options import SequenceOptions
+from mi_loop.app.cli import main, options_from_args
+from mi_loop.app.parser import FLAGS, build_parser, flag
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions, declared, option_flag
+
+from helpers import REPO, one_line_error
+
+#: Each command that takes an option class: its shortest command line and the class.
+COMMANDS = {
+    "fit": (["fit", "in.xyz", "-o", "{out}"], FitOptions),
+    "fit-sequence": (["fit-sequence", "frames.npz", "-o", "{out}"], SequenceOptions),
+    "fit-images": (["fit-images", "transforms.json", "-o", "{out}"], ImageFitOptions),
+    "fit-batch": (["fit-batch", "a.xyz", "-o", "{out}"], FitOptions),
+    "fit-batch --sequences": (["fit-batch", "--sequences", "seq.npz", "-o", "{out}"], SequenceOptions),
+}
+
+
+def command_line(name: str, out="out") -> list:
+    return [a.format(out=out) for a in COMMANDS[name][0]]
+
+
+def command_parser(name: str) -> argparse.ArgumentParser:
+    """The sub-parser of a command (``'fit-batch --sequences'``: the one ``--sequences`` switches to)."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    parser = sub.choices[name.split()[0]]
+    return parser.switch[1] if name.endswith("--sequences") else parser
+
+
+def help_of(action) -> str:
+    """An action's help as ``--help`` prints it (``%(default)s`` expanded), whitespace collapsed."""
+    return " ".join((action.help % {**vars(action), "prog": "mi-loop"}).split())
+
+
+def field_action(parser, f):
+    """The action of a field's own flag."""
+    action = parser._option_string_actions[option_flag(f)]
+    assert action.dest == f.name, (f.name, action.dest)
+    return action
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -60,28 +102,6 @@ def test_the_default_variant_is_the_package_default():
         assert parser.parse_args(argv).variant == DEFAULT_VARIANT
 
 
-def test_the_command_line_defaults_are_the_options_defaults():
-    import dataclasses
-    import inspect
-
-    from mi_loop.app.cli import fit_options
-    from mi_loop.fitting.options import FitOptions
-    from mi_loop.fitting.static import fit
-
-    assert fit_options(build_parser().parse_args(["fit", "--demo", "-o", "x"])) == FitOptions()
-    signature = inspect.signature(fit).parameters                  # fit()'s keywords read them too
-    for field in dataclasses.fields(FitOptions):
-        assert signature[field.name].default == field.default, field.name
-
-
-def test_fewer_views_than_the_default_views_per_iteration_render_them_all():
-    from mi_loop.app.cli import sequence_options
-    options = sequence_options(build_parser().parse_args(["fit-sequence", "f.npz", "-o", "x", "--views", "1"]))
-    assert options.views == options.views_per_iteration == 1
-    defaults = sequence_options(build_parser().parse_args(["fit-sequence", "f.npz", "-o", "x"]))
-    assert defaults == SequenceOptions()                            # the command line's defaults are the options'
-
-
 def test_every_option_has_help_and_seed_loss_points_random_are_explained(capsys):
     import argparse
 
@@ -112,3 +132,254 @@ def test_compare_help_defines_the_metrics(capsys):
     for phrase in ("P2S: point-to-surface distance", "HD: Hausdorff distance", "NAE: normal angle error in degrees",
                    "fractions of the target's bounding-box diagonal", "--control", "--mesh"):
         assert phrase in text, phrase
+
+
+# -- the option flags, generated from the fields' declarations ---------------------------------------
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_field_has_its_flag_default_type_and_choices_in_every_command_that_takes_it(name):
+    parser, cls = command_parser(name), COMMANDS[name][1]
+    args = build_parser().parse_args(command_line(name))
+    for f, declaration in declared(cls):
+        action = field_action(parser, f)
+        if declaration.capped_by:                          # the default depends on another flag
+            assert action.default is None and getattr(args, f.name) is None, f.name
+        else:
+            assert action.default == f.default and getattr(args, f.name) == f.default, f.name
+        if declaration.rule.parse is None:                 # a switch: the flag stores the opposite
+            assert action.nargs == 0 and action.const is (not f.default), f.name
+        else:
+            assert action.type is declaration.rule.parse and action.metavar == declaration.metavar, f.name
+            expected = None if declaration.paths else declaration.rule.choices
+            assert action.choices == expected, f.name
+        assert help_of(action).startswith(" ".join(declaration.help.split()).split("%")[0]), f.name
+    assert options_from_args(cls, args, name) == cls()      # the command line's defaults are the options'
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_help_shows_every_options_default(name, capsys):
+    parser, cls = command_parser(name), COMMANDS[name][1]
+    for f, declaration in declared(cls):
+        if declaration.rule.parse is None:
+            continue                                        # a switch: off unless given
+        text = help_of(field_action(parser, f))
+        if f.default is None:
+            assert "(default: " in text, (f.name, text)     # said in words
+        elif declaration.rule.choices:
+            assert str(f.default) in text and "default" in text, (f.name, text)
+        else:
+            assert f"default {f.default}" in text, (f.name, text)
+    with pytest.raises(SystemExit):
+        main([*name.split(), "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    assert all(option_flag(f) in shown for f in dataclasses.fields(cls))
+
+
+def test_a_field_added_to_an_option_class_appears_in_the_parser(monkeypatch):
+    from mi_loop.app import parser as parser_module
+    from mi_loop.fitting.options import COUNT, option
+
+    @dataclasses.dataclass
+    class Grown(FitOptions):
+        knots: int = option(7, rule=COUNT, metavar="K", help="knots per edge (default %(default)s)")
+
+    monkeypatch.setattr(parser_module, "FitOptions", Grown)
+    grown = command_parser("fit")
+    assert help_of(grown._option_string_actions["--knots"]) == "knots per edge (default 7)"
+    args = build_parser().parse_args(["fit", "in.xyz", "-o", "out", "--knots", "9", "--iterations", "5"])
+    assert options_from_args(Grown, args, "fit") == Grown(knots=9, iterations=5)
+    with pytest.raises(ValueError, match=r"^fit --knots: expected an integer >= 1, got 0$"):
+        options_from_args(Grown, build_parser().parse_args(["fit", "x", "-o", "o", "--knots", "0"]), "fit")
+
+
+def test_flags_come_from_the_declarations_and_one_name_has_one_flag_in_every_command():
+    seen = {}
+    for name in COMMANDS:
+        parser, cls = command_parser(name), COMMANDS[name][1]
+        for f in dataclasses.fields(cls):
+            action = field_action(parser, f)
+            assert seen.setdefault(f.name, action.option_strings[0]) == action.option_strings[0], f.name
+            assert flag(f.name) == FLAGS[f.name] == option_flag(f), f.name
+    assert (flag("n_vertices"), flag("resolution"), flag("n_points")) == ("--vertices", "--res", "--points")
+    assert (flag("image"), flag("geometric")) == ("--no-image", "--image-only")
+    assert flag("geometric or image") == "geometric or image"          # a check of two fields, as it is
+
+
+#: Rejected values of each rule (by its description): (command-line text, the value as the message shows it).
+BAD_VALUES = {
+    "a finite number >= 0": [("-1", "-1.0"), ("nan", "nan"), ("inf", "inf")],
+    "a finite number > 0": [("0", "0.0"), ("-2", "-2.0")],
+    "a finite number > 0 (or None: automatic)": [("0", "0.0"), ("nan", "nan")],
+    "an integer >= 0": [("-1", "-1")],
+    "an integer >= 1": [("0", "0"), ("-3", "-3")],
+    "an integer >= 4": [("3", "3")],
+    "an integer >= 16 (or None: the photos' size)": [("8", "8")],
+    "an integer in 0..4": [("5", "5"), ("-1", "-1")],
+    "an integer in 0..6": [("7", "7")],
+    "an integer in 0..10": [("11", "11")],
+    "a number in [0, 1]": [("1.5", "1.5"), ("-0.1", "-0.1")],
+    "a number in (0, 1]": [("0", "0.0"), ("1.5", "1.5")],
+}
+
+
+def rejected_values():
+    """(command, flag, text, message) for every valued, choice-free field of every command and its bad values."""
+    cases = []
+    for name, (_, cls) in COMMANDS.items():
+        for f, declaration in declared(cls):
+            rule = declaration.rule
+            if rule.parse is None or rule.choices:
+                continue                                    # switches; choices are argparse's (below)
+            assert rule.what in BAD_VALUES, f"no bad values for the rule {rule.what!r} of {cls.__name__}.{f.name}"
+            command = name.split()[0]
+            cases += [pytest.param(name, option_flag(f), text, f"{command} {option_flag(f)}: expected {rule.what}, "
+                                   f"got {shown}", id=f"{name}{option_flag(f)}={text}")
+                      for text, shown in BAD_VALUES[rule.what]]
+    return cases
+
+
+@pytest.mark.parametrize("name, option, text, message", rejected_values())
+def test_every_rejected_value_is_named_by_its_flag(name, option, text, message, tmp_path, capsys):
+    """The inputs do not exist: an error about the option proves it came first; nothing is written."""
+    line = one_line_error(capsys, [*command_line(name, tmp_path / "out"), f"{option}={text}"])
+    assert line == f"mi-loop: error: {message}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def choice_fields():
+    return [pytest.param(name, option_flag(f), f.metadata["option"].rule.choices, id=f"{name}{option_flag(f)}")
+            for name, (_, cls) in COMMANDS.items() for f, d in declared(cls) if d.rule.choices and not d.paths]
+
+
+@pytest.mark.parametrize("name, option, choices", choice_fields())
+def test_a_value_outside_the_choices_is_a_usage_error(name, option, choices, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([*command_line(name), option, "nosuch"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    choices = ", ".join(repr(c) for c in choices)
+    assert err.endswith(f"error: argument {option}: invalid choice: 'nosuch' (choose from {choices})\n"), err
+
+
+@pytest.mark.parametrize("name, old, new, field", [
+    ("fit-sequence", "--image-smooth", "--lam", "lam"),
+    ("fit-batch --sequences", "--image-smooth", "--lam", "lam"),
+    ("fit-images", "--smooth", "--laplacian", "laplacian"),
+    ("fit-images", "--stall", "--tolerance", "tolerance"),
+])
+def test_a_deprecated_spelling_works_and_warns_once(name, old, new, field, capsys):
+    args = build_parser().parse_args([*command_line(name), old, "0.25"])
+    assert capsys.readouterr().err == f"mi-loop: warning: {old} is deprecated; use {new}\n"
+    assert getattr(options_from_args(COMMANDS[name][1], args, name), field) == 0.25
+    build_parser().parse_args([*command_line(name), new, "0.25"])
+    assert capsys.readouterr().err == ""                            # the current spelling: no warning
+    parser = command_parser(name)
+    assert parser._option_string_actions[old].help == argparse.SUPPRESS       # hidden from the help,
+    assert f"deprecated spelling: {old}" in help_of(parser._option_string_actions[new])   # named by the new flag
+    declaration = next(d for f, d in declared(COMMANDS[name][1]) if f.name == field)
+    assert declaration.deprecated == (old,)
+
+
+def test_a_rejected_value_under_a_deprecated_spelling_names_the_current_flag(tmp_path, capsys):
+    code = main([*command_line("fit-images", tmp_path / "o"), "--smooth", "-1"])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 1 and err == ["mi-loop: warning: --smooth is deprecated; use --laplacian",
+                                 "mi-loop: error: fit-images --laplacian: expected a finite number >= 0, got -1.0"]
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_iterations_and_tolerance_reach_the_same_fields_in_every_command(name):
+    cls = COMMANDS[name][1]
+    args = build_parser().parse_args([*command_line(name), "--iterations", "7", "--tolerance", "0.25"])
+    options = options_from_args(cls, args, name)
+    assert (options.iterations, options.tolerance) == (7, 0.25)
+    assert dataclasses.replace(options, iterations=cls.iterations, tolerance=cls.tolerance) == cls()
+
+
+def test_sequence_options_have_a_tolerance_that_is_off_by_default():
+    assert SequenceOptions().tolerance == 0.0
+    args = build_parser().parse_args([*command_line("fit-sequence"), "--tolerance", "1e-3"])
+    assert options_from_args(SequenceOptions, args, "fit-sequence").tolerance == 1e-3
+
+
+@pytest.mark.parametrize("name, other", [("fit-batch", SequenceOptions), ("fit-batch --sequences", FitOptions)])
+def test_fit_batch_takes_fits_options_and_with_sequences_fit_sequences(name, other, capsys):
+    parser, cls = command_parser(name), COMMANDS[name][1]
+    dests = {a.dest for a in parser._actions if a.option_strings} - {"help", "quiet", "debug"}
+    own = {f.name for f in dataclasses.fields(cls)}
+    hand_written = {"scheduler", "workers", "sequences", "template", "view_level", "variant", "output"}
+    assert dests == own | hand_written | ({"frame_range"} if cls is SequenceOptions else set())
+    foreign = next(f for f in dataclasses.fields(other) if f.name not in own)     # --views or --h0
+    with pytest.raises(SystemExit) as info:
+        main([*command_line(name), option_flag(foreign), "1"])
+    assert info.value.code == 2
+    assert f"unrecognized arguments: {option_flag(foreign)} 1" in capsys.readouterr().err
+
+
+#: Flags that several commands take, and the words each command's help says them with.
+SAME_WORDS = {
+    "--iterations": "most iterations of ",
+    "--tolerance": "below which",
+    "--seed": "random seed: of ",
+    "--spp": "samples per pixel",
+    "--level": "4**L triangles per control face",
+    "--view-level": "4**L triangles per control face",
+    "--res": "in pixels",
+    "--resolution": "in pixels",
+    "--lam": "lambda of the (I + lambda L)^-1 smoothing over the cage",
+    "--cover": "weight of the coverage term: data points pull their nearest limit samples",
+    "--fold": "weight of the fold barrier on limit normals turned by more than 60 degrees",
+    "--emitters": "the photos' lighting: a Mitsuba XML file holding only emitters",
+    "--vertices": "control vertices",
+    "--albedo-lr": "Adam step of the per-control-vertex albedo",
+    "--deterministic": "bit-reproducible",
+    "--alpha": "ARAP weight",
+    "--samples": "limit samples of the distance terms",
+}
+
+
+@pytest.mark.parametrize("option, words", SAME_WORDS.items())
+def test_a_flag_says_the_same_thing_the_same_way_in_every_command(option, words):
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    parsers = {**sub.choices, "fit-batch --sequences": sub.choices["fit-batch"].switch[1]}
+    helps = {name: help_of(p._option_string_actions[option]) for name, p in parsers.items()
+             if option in p._option_string_actions}
+    assert len(helps) >= 2, helps                                       # a flag of several commands
+    assert all(words in text for text in helps.values()), helps
+
+
+# -- the README's synopsis is the generated help -------------------------------------------------------
+
+
+def readme_synopsis() -> list:
+    """(command, bracketed alternatives) of each ``mi-loop`` command in the README's Command line block."""
+    text = (REPO / "README.md").read_text()
+    block = re.search(r"^## Command line\n+```text\n(.*?)```", text, re.S | re.M).group(1)
+    commands = []
+    for line in block.splitlines():
+        line = line.split("  #")[0]
+        if line.startswith("mi-loop "):
+            commands.append([line])
+        else:
+            commands[-1].append(line)
+    return [" ".join(lines) for lines in commands]
+
+
+@pytest.mark.parametrize("synopsis", readme_synopsis(), ids=lambda s: " ".join(s.split()[:2]))
+def test_the_readme_synopsis_names_each_flag_with_its_metavar_or_choices(synopsis):
+    words = synopsis.split()
+    if words[1].startswith("--"):
+        return                                              # mi-loop --version
+    name = "fit-batch --sequences" if words[1] == "fit-batch" and "--sequences" in words else words[1]
+    parser = command_parser(name)
+    for group in re.findall(r"\[([^\]]+)\]", synopsis):
+        for item in group.split(" | "):
+            option, *value = item.split()
+            if not option.startswith("--"):
+                continue                                    # [fit options]
+            action = parser._option_string_actions.get(option)
+            assert action is not None and action.help != argparse.SUPPRESS, (name, option)
+            if value and (value[0].isupper() or "|" in value[0]):           # a metavar or the choices
+                shown = action.metavar or "|".join(action.choices or ()) or action.dest.upper()
+                assert value[0].rstrip(".") == shown, (name, option, value[0], shown)
