@@ -128,7 +128,7 @@ def sequence_case(root: Path) -> dict:
                                      spp=options.spp)
             return sequence.FrameImages(renderer, albedo, options.albedo_lr, None, (norm.scale, norm.centre),
                                         sequence.pixel_size([v.camera for v in views], norm.centre, norm.scale))
-        from mi_loop.render.photo import PhotoRenderer
+        from mi_loop.render.photo import PhotoRenderer   # the older code this script also times
 
         renderer = PhotoRenderer(norm.inverse(x0), F, albedo, views, emitters, level=options.level, spp=options.spp)
         return sequence.PhotoTerm(renderer, norm, albedo, options.albedo_lr)

@@ -25,8 +25,8 @@ from dataclasses import Field, dataclass, field, fields
 import numpy as np
 
 from mi_loop.errors import expected
-from mi_loop.render.images import INTEGRATORS
-from mi_loop.render.multiview import IMAGE_MODES, LOSSES
+from mi_loop.render.images import INTEGRATORS, LOSSES
+from mi_loop.render.scene import RIG_MODES
 
 __all__ = [
     "COVER",
@@ -480,7 +480,7 @@ class SequenceOptions:
     loss: str = option("l1", rule=one_of(LOSSES),
                        help="pixel loss of the rendered rig: mean absolute (l1, default) or mean squared (l2) "
                             "difference between the render and the target render")
-    mode: str = option("shading", rule=one_of(IMAGE_MODES),
+    mode: str = option("shading", rule=one_of(RIG_MODES),
                        help="images of the rendered rig: shaded (shading, default) or silhouettes only "
                             "(silhouette)")
     geometric: bool = option(True, rule=FLAG, flag="--image-only", exclusive="terms",
@@ -547,15 +547,6 @@ class SequenceOptions:
             raise OptionError("SequenceOptions", "every key", f"one of the fields {sorted(names)}", unknown)
         return cls(**values)
 
-    @property
-    def rig(self):
-        """The :class:`~mi_loop.render.multiview.RigOptions` of the image term."""
-        from mi_loop.render.multiview import RigOptions
-
-        return RigOptions(views=self.views, resolution=self.resolution, spp=self.spp,
-                          target_spp=self.target_spp, level=self.level, loss=self.loss, mode=self.mode,
-                          deterministic=self.deterministic)
-
 
 @dataclass
 class ImageFitOptions:
@@ -589,7 +580,7 @@ class ImageFitOptions:
     albedo_lr : float
         Adam step of the albedo; 0: kept at ``albedo`` (``--fixed-albedo``).
     lam : float
-        ``lambda`` of the ``(I + lambda L)`` parameterisation (:mod:`mi_loop.fitting.largesteps`).
+        ``lambda`` of the ``(I + lambda L)`` parameterisation (:mod:`mi_loop.ad.smoothing`).
     laplacian : float
         Weight of the cage's uniform-Laplacian term ``|L x|^2 / (n d^2)`` (``d`` the
         box diagonal), which keeps control vertices spread; 0: off.

@@ -6,9 +6,8 @@
   sensors (the one ``sensor_dict``), their projection, cameras framing a box (orbits, Fibonacci rigs);
 - :mod:`~mi_loop.render.scene`: scenes around one shape, the rig's lights, single renders;
 - :mod:`~mi_loop.render.images`: the differentiable image loss against photos or rendered
-  targets (:class:`~mi_loop.render.images.ImageRenderer`), synthetic captures;
-- :mod:`~mi_loop.render.photo`, :mod:`~mi_loop.render.multiview`: the two renderers it replaces,
-  kept until the fitting loops use it.
+  targets (:class:`~mi_loop.render.images.ImageRenderer`);
+- :mod:`~mi_loop.render.captures`: rendered targets and synthetic captures, the per-view seed.
 
 The single-render helpers of :mod:`~mi_loop.render.scene` are available here too
 (``from mi_loop import render; render.render_view(...)``, as in 0.1); importing

@@ -21,7 +21,7 @@ from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.mesh.geometry import vertex_normals
 from mi_loop.mesh.sampling import sample_surface
 from mi_loop.render.cameras import fibonacci_cameras
-from mi_loop.render.photo import render_views
+from mi_loop.render.captures import render_views
 
 from helpers import one_line_error
 

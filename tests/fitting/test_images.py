@@ -11,7 +11,7 @@ from mi_loop.fitting.options import ImageFitOptions, OptionError
 from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.metrics import two_sided
 from mi_loop.render.cameras import fibonacci_cameras
-from mi_loop.render.photo import render_views
+from mi_loop.render.captures import render_views
 from mi_loop.subdiv.limit import limit_matrix
 from mi_loop.subdiv.masks import limit_mesh
 from mi_loop.subdiv.tessellation import tessellate

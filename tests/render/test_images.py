@@ -3,10 +3,9 @@
 Oracles first: a target rendered from the control mesh's own limit surface
 costs no more than the noise of two renders, and Mitsuba's film holds the
 background in the RGB of partly covered pixels (so rendered targets need no
-compositing). Then consistency with the two renderers ImageRenderer replaces
-(PhotoRenderer on photos, multiview.Renderer on a rig: same numbers), the
-backward pass against single-view passes and central differences, and every
-rejected input. Scenes are tiny (24x24, a few views).
+compositing). Then the backward pass against single-view passes and central
+differences, one reverse pass shared with geometric terms, and every rejected
+input. Scenes are tiny (24x24, a few views).
 """
 from __future__ import annotations
 
@@ -16,11 +15,9 @@ import numpy as np
 import pytest
 
 from mi_loop import datasets
-from mi_loop.io.capture import View
-from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.mesh.geometry import vertex_normals
-from mi_loop.render.cameras import fibonacci_cameras, orbit_camera, rig_cameras
-from mi_loop.render.captures import render_targets, render_views, view_seed
+from mi_loop.render.cameras import rig_cameras
+from mi_loop.render.captures import render_targets, render_views
 from mi_loop.render.images import ImageRenderer
 from mi_loop.render.scene import rig_emitters
 from mi_loop.subdiv.masks import limit_mesh
@@ -104,74 +101,6 @@ def test_a_render_of_the_own_limit_surface_costs_only_the_noise(mode, loss):
     assert grown > 1.8 * own, (grown, own)
 
 
-# -- consistency with the renderers it replaces --------------------------------------
-
-
-def test_losses_and_gradients_match_the_photo_renderer():
-    """Photos (render_views: alpha masks, composited over the background) of a two-tone sphere.
-
-    PhotoRenderer renders with the sampler seed it is given, ImageRenderer with
-    view_seed(seed, k); with those seeds the per-view losses are the same
-    numbers, and so (one LLVM thread each) are the single-view gradients.
-    """
-    from mi_loop.render.photo import PhotoRenderer
-
-    V, F = sphere_mesh(0.4, 1)
-    Vt, Ft = sphere_mesh(0.45, 3)
-    emitters = [dict(e) for e in DEFAULT_EMITTERS]
-    cameras = fibonacci_cameras(2, [0, 0, 0], 2.0, fov_x_deg=40, width=24, height=24)
-    two_tone = np.where(Vt[:, 1:2] > 0, [0.8, 0.3, 0.2], [0.2, 0.4, 0.7])
-    views = render_views(Vt, Ft, cameras, emitters, colors=two_tone, normals=vertex_normals(Vt, Ft), spp=32)
-    assert all(((v.mask > 0) & (v.mask < 1)).any() for v in views)           # photos with soft edges
-    c = np.full(V.shape, 0.5)
-    old = PhotoRenderer(V, F, c, views, emitters, level=1, spp=8, deterministic=True)
-    new = ImageRenderer(V, F, views, emitters, albedo=c, level=1, spp=8, deterministic=True)
-    for T_old, T_new in zip(old.targets, new.targets):
-        np.testing.assert_array_equal(np.asarray(T_new), np.asarray(T_old))
-    seed = 5
-    expected = [float(old.view_loss(flat(V), flat(c), k, seed=view_seed(seed, k))[0]) for k in range(2)]
-    np.testing.assert_allclose(new.losses(flat(V), flat(c), seed=seed), expected, rtol=1e-6)
-    for k in range(2):
-        gx, gc, losses = gradients(new, V, c, [k], seed)
-        x, a = flat(V, grad=True), flat(c, grad=True)
-        old.backward(x, a, [k], seed=seed)
-        np.testing.assert_allclose(losses, [expected[k]], rtol=1e-6)
-        for g, g_old in ((gx, dr.grad(x)), (gc, dr.grad(a))):
-            assert np.abs(g).max() > 0
-            np.testing.assert_allclose(g, as_numpy(g_old), rtol=0, atol=1e-5 * np.abs(g).max())
-
-
-@pytest.mark.parametrize("mode", ["shading", "silhouette"])
-def test_the_rig_renders_what_the_multiview_renderer_rendered(mode):
-    """The same cameras (orbit cameras at rig_views' directions), 3 views at 24x24 and 256 spp.
-
-    multiview.Renderer's grey (or black) diffuse material and scene_dict's lights
-    against ImageRenderer's constant albedo and rig_emitters: the targets
-    differ by noise only (mean difference below 2e-4, mean absolute below 2e-3;
-    images of mean 0.22-0.25), and so do the L1 losses of the same control
-    mesh against the old targets (within 3 %; measured within 1.5 %).
-    """
-    from mi_loop.fitting.options import SequenceOptions
-    from mi_loop.render.multiview import Renderer, rig_views
-
-    V, F = sphere_mesh(0.4, 1)
-    Vt, Ft = sphere_mesh(0.45, 3)
-    Nt = vertex_normals(Vt, Ft)
-    old = Renderer(V, F, CAMERA_BOX, SequenceOptions(views=3, resolution=24, spp=256, target_spp=256, level=1,
-                                                     mode=mode).rig)
-    cameras = [orbit_camera(CAMERA_BOX, a, e, resolution=24) for a, e in rig_views(3)]
-    emitters = rig_emitters(CAMERA_BOX, mode)
-    T_old = [np.asarray(t) for t in old.targets(Vt, Ft, Nt)]
-    T_new = render_targets(Vt, Ft, cameras, emitters, albedo=np.full(Vt.shape, GREY[mode]), normals=Nt, spp=256)
-    for a, b in zip(T_old, T_new):
-        assert abs(np.mean(a - b.rgb)) < 2e-4 and np.mean(np.abs(a - b.rgb)) < 2e-3
-    views = [View(t.camera, a, t.mask, t.name) for a, t in zip(T_old, T_new)]
-    new = ImageRenderer(V, F, views, emitters, albedo=np.full(V.shape, GREY[mode]), level=1, spp=256)
-    old_targets = [mi.TensorXf(t) for t in T_old]
-    expected = [old.loss(flat(V), [k], old_targets, seed=4) for k in range(3)]
-    np.testing.assert_allclose(new.losses(flat(V), None, seed=4), expected, rtol=0.03)
-
-
 # -- the backward pass -------------------------------------------------------------
 
 
@@ -179,8 +108,8 @@ def test_backward_over_several_views_is_the_weighted_mean_of_single_views():
     """Each view rebuilds the geometry from x (Mitsuba frees its graph in every reverse render).
 
     backward(x, c, [0, 1], weight=w) = w (g_0 + g_1) / 2 for the points and the
-    albedo, and returns the single views' losses. (PhotoRenderer.backward, which
-    sets the same x without marking it dirty, returns g_0 / 2 here.)
+    albedo, and returns the single views' losses. (A renderer that sets the same
+    x again without marking it dirty would return g_0 / 2 here.)
     """
     V, F, targets, emitters = sphere_targets("shading", spp=16)
     c = np.full(V.shape, 0.6)
@@ -192,6 +121,49 @@ def test_backward_over_several_views_is_the_weighted_mean_of_single_views():
     np.testing.assert_allclose(losses, [l0, l1], rtol=1e-6)
     np.testing.assert_allclose(g01, 2.5 * (g0 + g1) / 2, rtol=0, atol=1e-5 * np.abs(g01).max())
     np.testing.assert_allclose(c01, 2.5 * (c0 + c1) / 2, rtol=0, atol=1e-5 * np.abs(c01).max())
+
+
+def test_a_reverse_pass_shared_with_geometric_terms_adds_their_gradients():
+    """IMLS + ARAP in one reverse pass, then the render's own passes into the same x: the sum of the three.
+
+    All three consume the same control-point variable (the limit operator and the
+    renderer's ``loop_subdiv`` gather it, ARAP too); Dr.Jit 1.5.0 once
+    mis-accumulated the z component when one variable fed two gather chains.
+    One thread per reverse render; the geometric terms' sums are deterministic,
+    so only float32 summation order separates the parts from the whole.
+    """
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.energies.arap import ARAP
+    from mi_loop.energies.imls import IMLS
+    from mi_loop.fitting.static import sample_parameters
+    from mi_loop.mesh.sampling import sample_surface
+
+    V, F, targets, emitters = sphere_targets("shading", spp=16)
+    r = ImageRenderer(V, F, targets, emitters, albedo=np.full(V.shape, 0.6), level=1, spp=4, deterministic=True)
+    rng = np.random.default_rng(0)
+    x0 = V + rng.normal(scale=0.01, size=V.shape)
+    arap = ARAP(V + rng.normal(scale=0.01, size=V.shape), F)
+    R = arap.rotations(x0)
+    P, N, _ = sample_surface(*sphere_mesh(0.45, 3), 2000, seed=0)
+    imls = IMLS(P, N)
+    op = LimitOperator(F, len(V), *sample_parameters(F, len(V), "vertices"), derivatives=False)
+    imls.update(as_numpy(op.positions(flat(x0))))
+    terms = {"arap": lambda x: 0.3 * arap.energy(x, R), "imls": lambda x: imls.energy(op.positions(x), reduce="mean")}
+
+    def gradient(names):
+        x = flat(x0, grad=True)
+        geometric = [terms[k](x) for k in names if k != "image"]
+        if geometric:
+            dr.backward(sum(geometric, mi.Float(0.0)))      # one pass for IMLS + ARAP
+        if "image" in names:
+            r.backward(x, None, [1], seed=7)                 # then the render's own pass
+        return as_numpy(dr.grad(x))
+
+    parts = {k: gradient([k]) for k in [*terms, "image"]}
+    for k, g in parts.items():
+        assert np.abs(g[:, 2]).max() > 1e-6, k          # every term moves z as well
+    total = sum(parts.values())
+    np.testing.assert_allclose(gradient([*terms, "image"]), total, rtol=0, atol=1e-4 * np.abs(total).max())
 
 
 def test_backward_with_gradients_on_the_points_only():
@@ -216,9 +188,9 @@ def test_point_gradient_matches_central_differences(mode):
     A 0.4-radius icosphere(1) control mesh (limit radius about 0.36) against
     renders of a 0.45-radius sphere; directions: the unit normals (growth) and
     a tilted growth n (1 + y / 2). The differences use the seeds of the AD
-    renders (losses and backward share view_seed). Tolerance 12 %, as for
-    multiview.Renderer: the boundary term is a Monte Carlo estimate with other
-    samples than the primal, and a fixed-seed L1 loss is quantised by pixels.
+    renders (losses and backward share view_seed). Tolerance 12 %: the boundary
+    term is a Monte Carlo estimate with other samples than the primal, and a
+    fixed-seed L1 loss is quantised by pixels.
     """
     V, F, targets, emitters = sphere_targets(mode)
     r = ImageRenderer(V, F, targets, emitters, albedo=np.full(V.shape, GREY[mode]), level=1, spp=256)
