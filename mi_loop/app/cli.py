@@ -54,15 +54,8 @@ from mi_loop import datasets, io
 from mi_loop.app.parser import build_parser
 from mi_loop.app.progress import Reporter
 from mi_loop.errors import FitError, expected
-from mi_loop.fitting.options import (
-    IMAGE_INITS,
-    FitOptions,
-    ImageFitOptions,
-    OptionError,
-    SequenceOptions,
-    declared,
-    option_flag,
-)
+from mi_loop.fitting.declarations import OptionError, declared, option_flag
+from mi_loop.fitting.options import IMAGE_INITS, FitOptions, ImageFitOptions, SequenceOptions
 
 __all__ = ["main", "options_from_args"]
 

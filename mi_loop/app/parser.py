@@ -21,7 +21,8 @@ from mi_loop import datasets
 from mi_loop.app.cluster import LOCAL_WORKERS
 from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
 from mi_loop.app.export_job import FORMATS, LIMIT_LEVELS, VIEW_LEVELS
-from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions, declared, option_flag
+from mi_loop.fitting.declarations import declared, option_flag
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions
 from mi_loop.render.variant import DEFAULT_VARIANT
 
 __all__ = ["FLAGS", "add_options", "build_parser", "flag"]

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mi_loop.errors import fail
-from mi_loop.fitting.loop import Seeds
 from mi_loop.fitting.options import ImageFitOptions
+from mi_loop.fitting.rules import Seeds
 
 __all__ = ["ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh", "tessellation_level"]
 
@@ -245,8 +245,9 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
 
     from mi_loop.ad.smoothing import SmoothParameterisation
     from mi_loop.fitting import terms
-    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, optimise
+    from mi_loop.fitting.loop import Parameter, optimise
     from mi_loop.fitting.optimisers import Adam, Constant, Exponential
+    from mi_loop.fitting.rules import Convergence, Failure, Refresh
     from mi_loop.render.images import ImageRenderer
 
     n, n_it = len(V), stage["iterations"]

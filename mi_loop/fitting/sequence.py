@@ -204,7 +204,7 @@ class Rig:
                            pixel=pixel_size(self.cameras, self.centre))
 
     def _renderer(self, x0, F, mesh, frame):
-        from mi_loop.fitting.loop import Seeds
+        from mi_loop.fitting.rules import Seeds
         from mi_loop.mesh.geometry import vertex_normals
         from mi_loop.render.captures import render_targets
         from mi_loop.render.images import ImageRenderer
@@ -372,8 +372,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
     from mi_loop.fitting import terms
-    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, Seeds, optimise
+    from mi_loop.fitting.loop import Parameter, optimise
     from mi_loop.fitting.optimisers import Adam, Constant
+    from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
 
     n = len(x0)
     n_it = int(iterations or options.iterations)

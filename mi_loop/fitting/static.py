@@ -353,8 +353,9 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     import mitsuba as mi
 
     from mi_loop.fitting import terms
-    from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, Seeds, optimise
+    from mi_loop.fitting.loop import Parameter, optimise
     from mi_loop.fitting.optimisers import Adam, Constant
+    from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
 
     op, fold_op = ops
     imls, coverage = energies

@@ -15,7 +15,8 @@ import pytest
 
 from mi_loop.app.cli import main, options_from_args
 from mi_loop.app.parser import FLAGS, build_parser, flag
-from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions, declared, option_flag
+from mi_loop.fitting.declarations import declared, option_flag
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions
 
 from helpers import REPO, one_line_error
 
@@ -178,7 +179,7 @@ def test_help_shows_every_options_default(name, capsys):
 
 def test_a_field_added_to_an_option_class_appears_in_the_parser(monkeypatch):
     from mi_loop.app import parser as parser_module
-    from mi_loop.fitting.options import COUNT, option
+    from mi_loop.fitting.declarations import COUNT, option
 
     @dataclasses.dataclass
     class Grown(FitOptions):

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from mi_loop import datasets
+from mi_loop.fitting.declarations import OptionError
 from mi_loop.fitting.hull import capture_bounds, visual_hull
 from mi_loop.fitting.images import fit_images, stage_plan, start_mesh
-from mi_loop.fitting.options import ImageFitOptions, OptionError
+from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.metrics import two_sided
 from mi_loop.render.cameras import fibonacci_cameras

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from mi_loop.errors import FitError
-from mi_loop.fitting.loop import Convergence, Failure, Parameter, Refresh, Seeds, State, optimise
+from mi_loop.fitting.loop import Parameter, State, optimise
 from mi_loop.fitting.optimisers import Adam, Constant
+from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
 from mi_loop.fitting.terms import Term
 
 from helpers import exactly

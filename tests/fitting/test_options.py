@@ -5,15 +5,8 @@ from dataclasses import fields
 
 import pytest
 
-from mi_loop.fitting.options import (
-    FitOptions,
-    ImageFitOptions,
-    Option,
-    OptionError,
-    Rule,
-    SequenceOptions,
-    option_flag,
-)
+from mi_loop.fitting.declarations import Option, OptionError, Rule, option_flag
+from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions
 
 from helpers import exactly
 
@@ -110,7 +103,7 @@ def test_renamed_fields_and_the_new_sequence_tolerance():
 
 
 def test_the_rules_say_what_they_accept():
-    from mi_loop.fitting.options import at_least, integers, interval, one_of
+    from mi_loop.fitting.declarations import at_least, integers, interval, one_of
 
     assert at_least(16).or_none("the photos' size").what == "an integer >= 16 (or None: the photos' size)"
     assert at_least(16).or_none().ok(None) and not at_least(16).ok(None) and not at_least(16).ok(16.0)
