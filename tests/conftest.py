@@ -1,6 +1,7 @@
 """Shared pytest fixtures: the Mitsuba variant and paths inside the repository."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import pytest
@@ -24,9 +25,14 @@ def pytest_generate_tests(metafunc):
     machine without one the CUDA case is not generated at all (not skipped).
     """
     if "jit_variant" in metafunc.fixturenames:
-        from mi_loop.render.variant import usable_variants
+        metafunc.parametrize("jit_variant", _usable_variants(), indirect=True)
 
-        metafunc.parametrize("jit_variant", usable_variants(), indirect=True)
+
+@functools.cache
+def _usable_variants() -> list:
+    from mi_loop.render.variant import usable_variants
+
+    return usable_variants()
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from mi_loop.app.compare_job import CONTROL_VERTEX_LIMIT, DEFINITIONS, LEVEL
 from mi_loop.app.export_job import FORMATS, LIMIT_LEVELS, VIEW_LEVELS
 from mi_loop.fitting.declarations import declared, option_flag
 from mi_loop.fitting.options import FitOptions, ImageFitOptions, SequenceOptions
-from mi_loop.render.variant import DEFAULT_VARIANT
+from mi_loop.render.variant import DEFAULT_VARIANT, VARIANT_ENV, default_variant
 
 __all__ = ["FLAGS", "add_options", "build_parser", "flag"]
 
@@ -109,9 +109,9 @@ def _common(top: bool) -> argparse.ArgumentParser:
 
 
 def _variant(p) -> None:
-    p.add_argument("--variant", default=DEFAULT_VARIANT,
+    p.add_argument("--variant", default=default_variant(),
                    help="Mitsuba variant, a JIT autodiff one: llvm_ad_* (CPU) or cuda_ad_* (GPU) "
-                        "(default %(default)s)")
+                        f"(default %(default)s: ${VARIANT_ENV} if set, else {DEFAULT_VARIANT})")
 
 
 def _integer(low: int, high: float, what: str):

@@ -10,14 +10,30 @@ is compiled (Debian 12's LLVM 15 aborts the process):
 """
 from __future__ import annotations
 
-__all__ = ["DEFAULT_VARIANT", "JIT_AD_PREFIXES", "cuda_available", "jit_ad_variants", "register",
-           "set_variant", "usable_variants"]
+__all__ = ["DEFAULT_VARIANT", "JIT_AD_PREFIXES", "VARIANT_ENV", "cuda_available", "default_variant",
+           "jit_ad_variants", "register", "set_variant", "usable_variants"]
 
 #: Variant used by the CLI, the examples and the tests unless told otherwise: CPU (LLVM), autodiff, RGB.
 DEFAULT_VARIANT = "llvm_ad_rgb"
 
+#: Environment variable naming the command line's default variant (e.g. ``cuda_ad_rgb`` on a GPU machine).
+VARIANT_ENV = "MI_LOOP_VARIANT"
+
 #: Prefixes of the variants the plugin works in (JIT, autodiff).
 JIT_AD_PREFIXES = ("llvm_ad_", "cuda_ad_")
+
+
+def default_variant() -> str:
+    """The command line's default ``--variant``: ``$MI_LOOP_VARIANT`` if set and not empty, else ``llvm_ad_rgb``.
+
+    Returns
+    -------
+    str
+        Not checked here: ``--variant`` values are checked before any work, whichever way they came.
+    """
+    import os
+
+    return os.environ.get(VARIANT_ENV, "").strip() or DEFAULT_VARIANT
 
 
 def jit_ad_variants() -> list:

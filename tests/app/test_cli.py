@@ -164,6 +164,21 @@ def test_an_unknown_variant_is_refused_with_the_usable_ones(tmp_path, capsys, co
     assert list(tmp_path.iterdir()) == []                                   # refused before any work
 
 
+def test_the_default_variant_comes_from_the_environment(tmp_path, capsys, monkeypatch):
+    """MI_LOOP_VARIANT is --variant's default (checked like a given one); unset or empty: llvm_ad_rgb."""
+    from mi_loop.app.parser import build_parser
+    from mi_loop.render.variant import jit_ad_variants
+
+    monkeypatch.setenv("MI_LOOP_VARIANT", "scalar_rgb")
+    line = one_line_error(capsys, ["fit", "--demo", "-o", str(tmp_path / "out")])
+    assert line == f"mi-loop: error: fit --variant: expected one of {', '.join(jit_ad_variants())}, got 'scalar_rgb'"
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setenv("MI_LOOP_VARIANT", "")
+    assert build_parser().parse_args(["fit", "--demo", "-o", "x"]).variant == "llvm_ad_rgb"
+    monkeypatch.delenv("MI_LOOP_VARIANT")
+    assert build_parser().parse_args(["fit-sequence", "a.npz", "-o", "x"]).variant == "llvm_ad_rgb"
+
+
 # -- options_from_args: the special forms the fields' declarations ask for ----------------------------
 
 
