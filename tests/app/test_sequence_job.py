@@ -529,7 +529,7 @@ def test_a_run_stopped_before_its_first_frame_leaves_an_existing_directory_as_it
 # -- what fit-sequence prints and records ----------------------------------------------
 
 
-def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, tmp_path, capsys, on_every_variant):
+def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, tmp_path, capsys, jit_variant):
     from dataclasses import asdict
 
     import mi_loop.app.sequence_job
@@ -555,7 +555,7 @@ def test_fit_sequence_prints_every_written_path_and_records_its_options(inputs, 
                                                       views_per_iteration=2,
                                                       image=False, deterministic=True))
     assert state["template"]["source"] == "file" and state["template"]["n_vertices"] == 42
-    assert state["normals_estimated"] is False and state["variant"] == on_every_variant and state["n_frames"] == 3
+    assert state["normals_estimated"] is False and state["variant"] == jit_variant and state["n_frames"] == 3
     readme = (REPO / "README.md").read_text()
     assert list(state) == list(RunRecord.__dataclass_fields__)        # one writer: RunRecord's keys, in order
     for key in state:                                                  # every key is documented
