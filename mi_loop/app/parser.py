@@ -114,18 +114,19 @@ def _variant(p) -> None:
                         f"(default %(default)s: ${VARIANT_ENV} if set, else {DEFAULT_VARIANT})")
 
 
-def _integer(low: int, high: float, what: str):
-    """An argparse type: an integer in ``low..high`` (a usage error names ``what``)."""
+def _integer(name: str, low: int, high: float, what: str):
+    """An argparse type called ``name`` (argparse's "invalid NAME value" says it): an integer in ``low..high``."""
     def parse(text: str) -> int:
         value = int(text)
         if not low <= value <= high:
             raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
         return value
+    parse.__name__ = name
     return parse
 
 
-positive = _integer(1, float("inf"), "a positive integer")
-level = _integer(0, 6, "a level in 0..6")
+positive = _integer("positive", 1, float("inf"), "a positive integer")
+level = _integer("level", 0, 6, "a level in 0..6")
 
 
 def _output(p, text: str = "output directory", **kwargs) -> None:

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from mi_loop.errors import FitError, fail
+from mi_loop.errors import fail
 from mi_loop.fitting.noise import ALPHA_CLEAN, RATIO_CLEAN, noise_estimate, template_options
 from mi_loop.fitting.options import SAMPLE_MODES, FitOptions
 from mi_loop.fitting.selection import ALPHAS, MIN_POINTS, held_out_split, select_alpha
@@ -361,10 +361,10 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     imls, coverage = energies
     x0 = mi.Float(V0.ravel().astype(np.float32))
     imls.update(np.array(op.positions(x0), dtype=np.float64).T)
+    failure = Failure("fit", recoveries=5, hint="try a smaller --alpha or another template")
     e0 = float(imls.energy(op.positions(x0), reduce="mean")[0])
     if not np.isfinite(e0):
-        raise FitError("fit(): expected a finite energy at the template, got IMLS distance "
-                       f"{e0} (try another template)")
+        raise failure.error(0, {"imls": e0})
     lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-6, 0.05 * mean_edge_length(V0, arap.F)))
     parts = [terms.Distance(imls, op)]
     if coverage is not None:
@@ -375,7 +375,7 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     result = optimise({"x": Parameter(x0, Adam(), Constant(lr))}, parts, iterations=options.iterations,
                       seeds=Seeds(options.seed), refresh=Refresh(20, 0.25 * imls.h0, op),
                       convergence=Convergence(options.tolerance, patience=12, halvings=3, window=40),
-                      failure=Failure("fit", recoveries=5, hint="try a smaller --alpha or another template"),
+                      failure=failure,
                       keep="best", progress=progress)
     history = {k: result.history.get(k, [0.0] * result.iterations) for k in ("imls", "cover", "arap", "fold")}
     history |= {"total": result.history["total"], "lr": result.history["lr"]}

@@ -394,7 +394,8 @@ def test_a_diverging_fit_is_one_line(tmp_path, capsys, monkeypatch):
     out = tmp_path / "out"
     line = one_line_error(capsys, ["fit", str(write_xyz(tmp_path / "in.xyz", P, N)), "-o", str(out),
                                    "--vertices", "60", "--iterations", "10", "--quiet"])
-    assert line.startswith("mi-loop: error: fit(): the optimisation diverged (non-finite energy)")
+    assert line == ("mi-loop: error: fit(): expected a finite energy, got imls nan at iteration 0 (the optimisation "
+                    "diverged; try a smaller --alpha or another template)")
     assert not out.exists()
 
 
