@@ -17,7 +17,8 @@ progress callback (``perf_counter`` between consecutive calls, with
   frame, 60 iterations with the image term refreshed every 6 (the defaults).
 
 The same script runs on the code before the core issue (``PYTHONPATH=<old
-checkout>``): it detects which API it has. Usage::
+checkout>``): it detects which API it has. ``solve`` times the smoothing step
+alone, the old host round trip and the device solve side by side. Usage::
 
     .venv/bin/python bench/bench_loop.py --captures DIR --sequence DIR [--json out.json]
     PYTHONPATH=/path/to/old/checkout .venv/bin/python bench/bench_loop.py ...   # the same on older code
@@ -128,7 +129,7 @@ def sequence_case(root: Path) -> dict:
                                      spp=options.spp)
             return sequence.FrameImages(renderer, albedo, options.albedo_lr, None, (norm.scale, norm.centre),
                                         sequence.pixel_size([v.camera for v in views], norm.centre, norm.scale))
-        from mi_loop.render.photo import PhotoRenderer   # the older code this script also times
+        from mi_loop.render.photo import PhotoRenderer  # the older code this script also times
 
         renderer = PhotoRenderer(norm.inverse(x0), F, albedo, views, emitters, level=options.level, spp=options.spp)
         return sequence.PhotoTerm(renderer, norm, albedo, options.albedo_lr)
@@ -145,11 +146,54 @@ def sequence_case(root: Path) -> dict:
     return out
 
 
+def solve_case(sizes=(2, 3, 4), runs: int = 50) -> dict:
+    """The ``(I + lambda L)^-1`` step of a gradient alone, the old way and the new, in one process.
+
+    ``host``: the gradient copied to NumPy, three SciPy solves with a factor made
+    once (``scipy.sparse.linalg.factorized``), copied back (what the image and
+    sequence fits did every iteration); ``device``: :meth:`SmoothParameterisation.solve`
+    (cholespy's factor where the variant runs, no copy). Icospheres of level 2-4
+    (162-2562 control vertices), lambda 20; median ms over ``runs`` calls.
+    """
+    import drjit as dr
+    import mitsuba as mi
+    import scipy.sparse.linalg as spla
+
+    from mi_loop.ad.smoothing import SmoothParameterisation
+    from mi_loop.datasets import icosphere
+
+    out = {}
+    for level in sizes:
+        V, F = icosphere(level)
+        p = SmoothParameterisation(F, len(V), 20.0)
+        factor = spla.factorized(p.M.tocsc())
+        g = mi.Float(np.random.default_rng(0).normal(size=3 * len(V)).astype(np.float32))
+
+        def host(g=g, factor=factor):
+            G = np.array(g, dtype=np.float64).reshape(-1, 3)
+            return mi.Float(np.stack([factor(G[:, k]) for k in range(3)], axis=1).astype(np.float32).ravel())
+
+        row = {}
+        for name, step in (("host", host), ("device", lambda p=p, g=g: p.solve(g))):
+            times = []
+            for i in range(runs + 3):
+                dr.sync_thread()
+                t = time.perf_counter()
+                dr.eval(step())
+                dr.sync_thread()
+                if i >= 3:
+                    times.append(1e3 * (time.perf_counter() - t))
+            row[f"{name}_ms"] = float(np.median(times))
+        out[str(len(V))] = row
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--captures", type=Path, help="directory of bench/captures.py (holds spot_grey/)")
     parser.add_argument("--sequence", type=Path, help="directory of bench/capture_sequence.py's spot")
-    parser.add_argument("--cases", nargs="+", default=["static", "images", "sequence"])
+    parser.add_argument("--cases", nargs="+", default=["static", "images", "sequence"],
+                        help="static, images, sequence (both codes), solve (this code: old and new way)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     mi_loop.set_variant("llvm_ad_rgb")
@@ -159,6 +203,8 @@ def main() -> None:
             results[case] = static_case()
         elif case == "images":
             results[case] = images_case(args.captures / "spot_grey" / "transforms.json")
+        elif case == "solve":
+            results[case] = solve_case()
         else:
             results[case] = sequence_case(args.sequence)
         print(case, results[case], flush=True)

@@ -134,6 +134,11 @@ class State:
             self._cache[key] = np.array(self.values[name], dtype=np.float64).reshape(-1, 3)
         return self._cache[key]
 
+    def finite(self) -> bool:
+        """Whether the host copies made this iteration (:meth:`numpy`) are finite; the parameters
+        without one show in the energies, which all depend on the control points."""
+        return all(np.isfinite(v).all() for k, v in self._cache.items() if k[0] == "numpy")
+
     def host(self, op, what: str = "positions") -> np.ndarray:
         """``(k, 3)`` float64 NumPy copy of :meth:`evaluate` (``'positions'`` or ``'normals'``), once per iteration."""
         key = ("host", id(op), what)
@@ -277,7 +282,7 @@ class _Run:
             E = E + c
         dr.eval(*contributions, E)
         values = {t.name: float(c[0]) for t, c in zip(self.energy_terms, contributions)} | {"total": float(E[0])}
-        if not all(np.isfinite(v) for v in values.values()) or not _finite(self.params):
+        if not all(np.isfinite(v) for v in values.values()) or not state.finite():
             self.recoveries += 1
             if self.recoveries > self.failure.recoveries:
                 raise self.failure.error(state.it, values)
@@ -329,12 +334,6 @@ class _Run:
             v = chosen[k] if p.parameterisation is None else p.parameterisation.solve(chosen[k])
             out[k] = np.array(v, dtype=np.float64).reshape(-1, 3)
         return LoopResult(out, self.history, len(self.history["total"]), converged, self.seconds)
-
-
-def _finite(params) -> bool:
-    import drjit as dr
-
-    return all(bool(dr.all(dr.isfinite(p.value))) for p in params.values())
 
 
 def _restore(params, values) -> None:

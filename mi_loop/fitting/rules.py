@@ -83,24 +83,16 @@ class Refresh:
 
     def due(self, state) -> bool:
         """Whether the terms refresh in this iteration."""
-        import drjit as dr
-
         if state.it % self.every == 0 or self._at is None:
             return True
         if self.move is None:
             return False
-        Q = state.evaluate(self.probe)
-        moved = dr.max(dr.max(dr.abs(dr.detach(Q) - self._at)))
-        return bool(moved[0] > self.move)
+        # the samples' host copy, shared through the state with the terms that refresh from it
+        return bool(np.abs(state.host(self.probe) - self._at).max() > self.move)
 
     def done(self, state) -> None:
         """Remember where the terms refreshed."""
-        import drjit as dr
-
-        if self.move is not None:
-            self._at = dr.detach(state.evaluate(self.probe))
-        else:
-            self._at = True
+        self._at = state.host(self.probe) if self.move is not None else True
 
 
 @dataclass
