@@ -406,10 +406,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     seeds = Seeds(options.seed).child(frame)
     params = {"x": Parameter(x, Adam(), Constant(lr))}
     balance, extra = _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts)
-    keep = "best" if options.tolerance > 0 else "last"
     result = optimise(params, parts, iterations=n_it, seeds=seeds, refresh=Refresh(10),
-                      convergence=Convergence(options.tolerance),
-                      failure=failure, keep=keep,
+                      convergence=Convergence(options.tolerance), failure=failure,
                       progress=None if progress is None else (lambda i, total, _: progress(i, total)))
     h = result.history
     info = {"history": {"geo": h["total"], "image": h.get("image", [np.nan] * result.iterations)},

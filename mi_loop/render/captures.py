@@ -195,13 +195,9 @@ def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int
     else:
         bsdf = albedo_bsdf()
     mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(bsdf), colors=colors)
-    scene = camera_scene(mesh, cameras, emitters, integrator={"type": "direct"}, spp=spp, alpha=True)
-    views = []
-    for k, camera in enumerate(cameras):
-        image = np.asarray(mi.render(scene, spp=spp, seed=seed + k, sensor=k), dtype=np.float32)
-        views.append(View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
-                          name=f"view_{k:03d}"))
-    return views
+    return [View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
+                 name=f"view_{k:03d}")
+            for k, camera, image in _renders(mesh, cameras, emitters, spp, lambda k: seed + k, alpha=True)]
 
 
 def render_targets(V, F, cameras, emitters, *, albedo, normals=None, spp: int = 64, seed: int = 0) -> list:
@@ -246,10 +242,14 @@ def render_targets(V, F, cameras, emitters, *, albedo, normals=None, spp: int = 
     A = check_albedo(albedo, len(np.asarray(V)), "render_targets")
     spp = check_count(spp, "render_targets", "spp", 1)
     mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(albedo_bsdf()), colors=A)
-    scene = camera_scene(mesh, cameras, emitters, integrator={"type": "direct"}, spp=spp)
-    views = []
+    return [View(camera=camera, rgb=image[..., :3], mask=np.ones(image.shape[:2], np.float32), name=f"view_{k:03d}")
+            for k, camera, image in _renders(mesh, cameras, emitters, spp, lambda k: view_seed(seed, k))]
+
+
+def _renders(mesh, cameras, emitters, spp: int, seed_of, alpha: bool = False):
+    """``(k, camera, float32 image (h, w, 3 or 4))`` of a mesh from each camera (``direct``, seed ``seed_of(k)``)."""
+    import mitsuba as mi
+
+    scene = camera_scene(mesh, cameras, emitters, integrator={"type": "direct"}, spp=spp, alpha=alpha)
     for k, camera in enumerate(cameras):
-        image = np.asarray(mi.render(scene, spp=spp, seed=view_seed(seed, k), sensor=k), dtype=np.float32)
-        views.append(View(camera=camera, rgb=image[..., :3], mask=np.ones(image.shape[:2], np.float32),
-                          name=f"view_{k:03d}"))
-    return views
+        yield k, camera, np.asarray(mi.render(scene, spp=spp, seed=seed_of(k), sensor=k), dtype=np.float32)
