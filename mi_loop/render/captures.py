@@ -34,15 +34,18 @@ __all__ = ["background", "camera_scene", "render_targets", "render_views", "view
 
 
 def view_seed(seed: int, k: int) -> int:
-    """Return the sampler seed of view ``k`` in a call with seed ``seed``: ``(1009 seed + k) mod 2**32``.
+    """Return the sampler seed of view ``k`` in a call with seed ``seed``: one word of ``SeedSequence(seed, (k,))``.
+
+    The seed tree of the fits (:class:`mi_loop.fitting.rules.Seeds`) spawned one
+    level further, by view: two different ``(seed, k)`` pairs never share a
+    stream by construction (unlike an affine rule such as ``1009 seed + k``).
 
     Parameters
     ----------
     seed : int
-        The call's seed (an iteration's, say); distinct seeds give distinct
-        sampler seeds for fewer than 1009 views.
+        The call's seed (an iteration's, say), ``>= 0``.
     k : int
-        The view.
+        The view, ``>= 0``.
 
     Returns
     -------
@@ -51,10 +54,10 @@ def view_seed(seed: int, k: int) -> int:
 
     Examples
     --------
-    >>> view_seed(0, 3), view_seed(2, 0), view_seed(2, 5)
-    (3, 2018, 2023)
+    >>> view_seed(5, 0) == view_seed(5, 0) != view_seed(5, 1)
+    True
     """
-    return (1009 * int(seed) + int(k)) % 2**32
+    return int(np.random.SeedSequence(int(seed), spawn_key=(int(k),)).generate_state(1, np.uint32)[0])
 
 
 def camera_scene(shape, cameras, emitters, *, integrator: dict | None, spp: int, alpha: bool = False):

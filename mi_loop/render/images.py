@@ -21,7 +21,7 @@ covered, Mitsuba's ``hdrfilm`` stores ``a S + (1 - a) B`` in RGB and ``a`` in
 alpha), so its mask is all ones and ``T`` is the render itself.
 
 Seeds. Every render of view ``k`` under the seed ``s`` of a call uses the
-sampler seed :func:`~mi_loop.render.captures.view_seed` ``(s, k) = (1009 s + k) mod 2**32``:
+sampler seed :func:`~mi_loop.render.captures.view_seed` ``(s, k)`` (the seed tree, one level down):
 :meth:`~ImageRenderer.render`, :meth:`~ImageRenderer.view_loss`,
 :meth:`~ImageRenderer.backward` and :meth:`~ImageRenderer.losses` see the
 same samples for the same ``(s, k)``, and the views of one call see different ones.

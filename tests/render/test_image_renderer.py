@@ -79,24 +79,28 @@ def test_a_render_of_the_own_limit_surface_costs_only_the_noise(mode, loss):
     """Target: the blob's limit surface tessellated at level 2 (limit normals); renderer: the blob at level 2.
 
     Both at 256 spp, so the loss is the difference of two noisy renders of one
-    picture: no more than 1.25 times that of two target renders with other
-    seeds (measured 0.77-1.12), and far below that of the blob grown by 5 %
-    (measured 2.2-21 times the own loss).
+    picture: its expectation is that of two target renders with other seeds.
+    One pair of seeds is a noisy statistic (the ratio ranged 0.85-1.57 over six
+    pairs for L2, whose sum is dominated by a few edge pixels), so the sums over
+    six independent pairs are compared: the own loss no more than 1.25 times
+    the floor (measured 0.97-1.10), and far below that of the blob grown by 5 %.
     """
     V, F = datasets.blob()
     V = 0.5 * V / np.abs(V).max()
     P, Ft, N = limit_mesh(V, F, 2)
     cameras, emitters = rig(mode)
     albedo = GREY[mode]
-    T0, T1 = (render_targets(P, Ft, cameras, emitters, albedo=np.full(P.shape, albedo), normals=N, spp=256,
-                             seed=s) for s in (0, 1))
-    r = ImageRenderer(V, F, T0, emitters, albedo=np.full(V.shape, albedo), level=2, spp=256, loss=loss)
-    for k, view in enumerate(T0):
-        np.testing.assert_array_equal(np.asarray(r.targets[k]), view.rgb)      # no compositing
     power = 1 if loss == "l1" else 2
-    floor = sum(np.mean(np.abs(a.rgb - b.rgb) ** power) for a, b in zip(T0, T1))
-    own = sum(r.losses(flat(V), None, seed=3))
-    grown = sum(r.losses(flat(1.05 * V), None, seed=3))
+    own = floor = grown = 0.0
+    for pair in range(6):
+        T0, T1 = (render_targets(P, Ft, cameras, emitters, albedo=np.full(P.shape, albedo), normals=N, spp=256,
+                                 seed=s) for s in (2 * pair, 2 * pair + 1))
+        r = ImageRenderer(V, F, T0, emitters, albedo=np.full(V.shape, albedo), level=2, spp=256, loss=loss)
+        for k, view in enumerate(T0):
+            np.testing.assert_array_equal(np.asarray(r.targets[k]), view.rgb)      # no compositing
+        floor += sum(np.mean(np.abs(a.rgb - b.rgb) ** power) for a, b in zip(T0, T1))
+        own += sum(r.losses(flat(V), None, seed=100 + pair))
+        grown += sum(r.losses(flat(1.05 * V), None, seed=100 + pair))
     assert own <= 1.25 * floor, (own, floor)
     assert grown > 1.8 * own, (grown, own)
 
@@ -208,10 +212,16 @@ def test_point_gradient_matches_central_differences(mode):
 
 
 def test_albedo_gradient_matches_central_differences():
-    """d loss / d c along a uniform brightening and a red-only change, L2 loss (smooth in c), 64 spp, h = 0.05."""
+    """d loss / d c along a uniform brightening and a red-only change, L2 loss (quadratic in c), h = 0.05.
+
+    The differences are exact for a quadratic; what separates them from the AD
+    derivative is that the reverse pass draws other samples than the primal.
+    At 64 spp that relative error ranged -1 % to +7.5 % over six seeds, at 256
+    spp -2 % to +2 %, at 1024 spp -0.3 % to +0.3 %: 1024 spp and 2 %.
+    """
     V, F, targets, emitters = sphere_targets("shading", spp=64)
     c = np.full(V.shape, 0.5)
-    r = ImageRenderer(V, F, targets, emitters, albedo=c, level=1, spp=64, loss="l2")
+    r = ImageRenderer(V, F, targets, emitters, albedo=c, level=1, spp=1024, loss="l2")
     _, gc, _ = gradients(r, V, c, [0, 1], seed=3)
 
     def loss(a):
