@@ -13,7 +13,7 @@ Three parts, each printing Markdown tables:
     depth-8 mesh of the same scan (pymeshlab, one thread, timed once in the
     same process), and one run each of the variants ``samples='level1'``,
     smaller IMLS radii ``--h0``, ARAP weight ``--alpha``, ``--tolerance`` and
-    an iteration cap ``--max-iterations``.
+    an iteration cap ``--iterations``.
 ``nps``
     Neural Parametric Surfaces protocol (P2S, HD x 1e-3, NAE degrees, extent 2,
     30k samples per side) on ``bunny.obj`` and ``fandisk.obj``: 100k area
@@ -357,10 +357,10 @@ def main(argv=None) -> None:
                     help="extra ARAP weights tried (scan: both sample modes; nps: level1)")
     ap.add_argument("--tolerance", type=float, nargs="*", default=[1e-3],
                     help="extra stopping tolerances tried at 4667 control vertices (default fit: 1e-4)")
-    ap.add_argument("--max-iterations", type=int, nargs="*", default=[60],
+    ap.add_argument("--iterations", type=int, nargs="*", default=[60],
                     help="extra iteration caps tried on the scan (default fit: 400, stops on its own)")
     ap.add_argument("--quick", action="store_true",
-                    help="scan: default fits, --tolerance and --max-iterations rows only "
+                    help="scan: default fits, --tolerance and --iterations rows only "
                          "(no Poisson depth 8, no other variants); "
                          "robust: no alpha 0.01 rows for noise and outliers")
     ap.add_argument("--cover", type=float, help="coverage weight of every fit (default: fit()'s)")
