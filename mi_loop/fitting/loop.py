@@ -140,10 +140,23 @@ class State:
         return all(np.isfinite(v).all() for k, v in self._cache.items() if k[0] == "numpy")
 
     def host(self, op, what: str = "positions") -> np.ndarray:
-        """``(k, 3)`` float64 NumPy copy of :meth:`evaluate` (``'positions'`` or ``'normals'``), once per iteration."""
+        """``(k, 3)`` float64 NumPy copy of ``op.positions`` or ``op.normals`` of :attr:`x`, once per iteration.
+
+        Positions are the very variable the energies use (:meth:`evaluate`), read
+        back; normals are evaluated apart, without gradients, so that reading them
+        does not materialise a variable the energies differentiate (a fused kernel
+        and a materialised one may round the last bit differently).
+        """
         key = ("host", id(op), what)
         if key not in self._cache:
-            self._cache[key] = np.array(self.evaluate(op, what), dtype=np.float64).T
+            if what == "positions":
+                value = self.evaluate(op, what)
+            else:
+                import drjit as dr
+
+                with dr.suspend_grad():
+                    value = getattr(op, what)(dr.detach(self.values["x"]))
+            self._cache[key] = np.array(value, dtype=np.float64).T
         return self._cache[key]
 
     def evaluate(self, op, what: str = "positions"):
@@ -272,11 +285,16 @@ class _Run:
         import drjit as dr
         import mitsuba as mi
 
-        if self.refresh.due(state):
-            for t in self.terms:
+        due = self.refresh.due(state)
+        contributions = []
+        for t in self.energy_terms:          # each term refreshes just before it is built (AD nodes in term order)
+            if due:
+                t.refresh(state)
+            contributions.append(t.energy(state))
+        if due:
+            for t in self.render_terms:
                 t.refresh(state)
             self.refresh.done(state)
-        contributions = [t.energy(state) for t in self.energy_terms]
         E = contributions[0] if contributions else mi.Float(0.0)
         for c in contributions[1:]:
             E = E + c
