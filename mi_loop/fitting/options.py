@@ -148,8 +148,8 @@ class FitOptions:
 class SequenceOptions:
     """Parameters of :func:`mi_loop.fitting.sequence.fit_frame` and ``mi-loop fit-sequence``.
 
-    Defaults tuned on 2 CPU cores. Stored in ``sequence.json`` by
-    ``fit-sequence``, so that ``--resume`` continues with the same ones.
+    Stored in ``sequence.json`` by ``fit-sequence``, so that ``--resume`` continues
+    with the same ones.
 
     Attributes
     ----------

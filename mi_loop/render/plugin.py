@@ -41,9 +41,8 @@ come only from ``direct_projective`` and ``prb_projective`` (``prb``,
 gradients of *indirect* visibility changes (shadows the shape casts on itself
 or on other shapes under area or environment lights) and builds a guiding
 structure for them in every render, while silhouettes (``sppp``) and shading
-(``sppc``) do not need it. ``bench/bench_iteration.py`` measures one view of
-a 1000-vertex cage at level 1, 96x96 and 4 spp, forward and backward: 81 ms
-with ``sppi: 0``, 8.0 s with the default (2 cores). Render views one at a time:
+(``sppc``) do not need it; the default costs tens of times more per render
+(``bench/bench_iteration.py``, BENCHMARKS.md "What it costs per iteration"). Render views one at a time:
 the ``batch`` sensor fails with the projective integrators.
 """
 from __future__ import annotations
