@@ -91,7 +91,9 @@ class FitOptions:
     tolerance : float
         Relative improvement of the best energy below which the step halves
         (after 12 iterations without it) and the loop stops (over 40
-        iterations, or after three halvings).
+        iterations, or after three halvings); 0: the loop runs all its
+        iterations at the first step size (:class:`~mi_loop.fitting.rules.Convergence`:
+        one meaning of 0 in the three fits).
     cover : float
         Weight of the coverage term (:mod:`mi_loop.energies.coverage`); 0: off.
     seed : int
@@ -122,7 +124,7 @@ class FitOptions:
                                   "converged (default %(default)s)")
     tolerance: float = option(5e-3, rule=WEIGHT,
                               help="relative improvement of the best energy below which the step halves and the "
-                                   "fit stops before --iterations (default %(default)s)")
+                                   "fit stops before --iterations (default %(default)s; 0: it runs all of them)")
     cover: float = option(COVER, rule=WEIGHT, help=COVER_HELP)
     seed: int = option(0, rule=SEED, help=SEED_HELP.format("the automatic template's sampling and of --samples "
                                                            "random", ""))

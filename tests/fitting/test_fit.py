@@ -336,3 +336,10 @@ def test_fit_says_whether_it_converged(cloud):
     assert done.converged and done.params["iterations_run"] < 400
     capped = fit(*cloud, FitOptions(iterations=5), template=small_template())
     assert not capped.converged and capped.params["iterations_run"] == 5
+
+
+def test_tolerance_zero_runs_every_iteration_at_the_first_step(cloud):
+    """0 turns the convergence test off, as in the sequence and image fits: no halving, no early stop."""
+    result = fit(*cloud, FitOptions(iterations=150, tolerance=0.0), template=small_template())
+    assert not result.converged and result.params["iterations_run"] == 150
+    assert len(set(result.history["lr"])) == 1
