@@ -413,8 +413,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     info = {"history": {"geo": h["total"], "image": h.get("image", [np.nan] * result.iterations)},
             "time_render": result.seconds.get("image", 0.0), "iterations": result.iterations,
             "image_scale": None if balance is None or balance.k is None else float(balance.k),
-            "seen": 1.0 if balance is None else balance.seen,
-            "albedo": result.values["albedo"] if "albedo" in result.values else extra.get("albedo"), **extra}
+            "seen": 1.0 if balance is None else balance.seen, **extra}
+    if "albedo" in result.values:        # the fitted albedo, carried to the next frame
+        info["albedo"] = result.values["albedo"]
     return result.values["x"], info
 
 

@@ -152,3 +152,33 @@ def test_partial_data_leaves_the_unseen_half_to_the_images_but_a_complete_frame_
     assert 0.5 < partial["seen"] < 0.9, partial["seen"]   # the far half, beyond a control edge, unsupported
     complete, _ = _weights_after_one_step(0.0, half=True, complete=True)
     assert complete["seen"] == 1.0
+
+
+def test_a_frame_returns_the_albedo_it_fitted_for_the_next_frame():
+    """Photos of a red sphere, albedo started grey: the albedo fit_frame returns is the stepped one (redder),
+    not the one it started from (the next frame starts from it)."""
+    from mi_loop import datasets
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.optimisers import Adam
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.fitting.sequence import FrameImages, fit_frame
+    from mi_loop.fitting.static import sample_parameters
+    from mi_loop.io.emitters import DEFAULT_EMITTERS
+    from mi_loop.render.cameras import fibonacci_cameras
+    from mi_loop.render.captures import render_views
+    from mi_loop.render.images import ImageRenderer
+
+    V, F = datasets.icosphere(1)
+    V = 0.4 * V
+    lights = [dict(e) for e in DEFAULT_EMITTERS]
+    cams = fibonacci_cameras(4, [0, 0, 0], 2.5, fov_x_deg=40, width=24, height=24)
+    photos = render_views(V, F, cams, lights, colors=np.tile([0.9, 0.1, 0.1], (len(V), 1)), spp=8)
+    grey = np.full(V.shape, 0.5)
+    renderer = ImageRenderer(V, F, photos, lights, albedo=grey, level=0, spp=2)
+    options = SequenceOptions(views_per_iteration=2, spp=2, level=0, iterations=6, image_every=1, geometric=False)
+    images = FrameImages(renderer, grey, albedo_lr=0.05, albedo_optimiser=Adam())
+    op = LimitOperator(F, len(V), *sample_parameters(F, len(V), "vertices"), derivatives=True)
+    _, info = fit_frame(V, F, None, None, op, images, options, frame=0, lr=1e-3)
+    albedo = np.asarray(info["albedo"])
+    assert albedo.shape == V.shape
+    assert albedo[:, 0].mean() > 0.6 and albedo[:, 1].mean() < 0.4, albedo.mean(axis=0)
