@@ -59,6 +59,7 @@ def _start(init: Path | None, log):
 
 
 def _finest(views, options: ImageFitOptions):
+    """The views at the finest stage's size (as read: :func:`run` reads at ``options.resolution``)."""
     longest = max(max(v.camera.width, v.camera.height) for v in views)
     scale = 1.0 if options.resolution is None else min(1.0, options.resolution / longest)
     return [v.resized(scale) if scale < 1 else v for v in views]
@@ -98,7 +99,9 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     Parameters
     ----------
     capture : pathlib.Path
-        ``transforms.json`` of the photos.
+        ``transforms.json`` of the photos, read at ``options.resolution``, the
+        finest stage's longest side (:func:`~mi_loop.io.capture.read_capture`:
+        undistorted, JPEGs decoded reduced, no photo kept at full size).
     output : pathlib.Path
         OUTDIR (created).
     options : ImageFitOptions
@@ -126,8 +129,9 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     from mi_loop.render.variant import set_variant
 
     t0 = time.perf_counter()
-    shot = read_capture(capture)
-    log.say(f"{capture}: {len(shot.views)} photos, {shot.views[0].camera.width}x{shot.views[0].camera.height}")
+    shot = read_capture(capture, resolution=options.resolution)     # straight to the finest stage's size
+    log.say(f"{capture}: {len(shot.views)} photos, read at {shot.views[0].camera.width}x"
+            f"{shot.views[0].camera.height}")
     start = _start(init, log)
     created = io.first_missing_ancestor(output)
     out = io.ensure_writable_dir(output)

@@ -70,7 +70,8 @@ def in_mask(view, X, threshold: float = 0.5):
     Returns
     -------
     inside : (k,) bool NumPy array
-        In front of the camera and within the image.
+        In front of the camera, within the image and, in an undistorted photo,
+        on a pixel the photo saw at least half of (``view.valid >= 0.5``).
     foreground : (inside.sum(),) bool NumPy array
         For the points ``X[inside]``: the mask at their pixel is ``>= threshold``.
     """
@@ -81,6 +82,10 @@ def in_mask(view, X, threshold: float = 0.5):
     uv = project(cam, X)
     inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
     px = np.clip(uv[inside].astype(np.int64), 0, [cam.width - 1, cam.height - 1])
+    if view.valid is not None:                   # unseen pixels of an undistorted photo say nothing
+        seen = view.valid[px[:, 1], px[:, 0]] >= 0.5
+        inside[np.flatnonzero(inside)[~seen]] = False
+        px = px[seen]
     return inside, view.mask[px[:, 1], px[:, 0]] >= threshold
 
 

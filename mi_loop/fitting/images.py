@@ -184,7 +184,7 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     Parameters
     ----------
     views : sequence of mi_loop.io.capture.View
-        Photos with masks and cameras (full resolution; stages resize them).
+        Photos with masks and cameras (at the finest stage's size or larger; stages resize them).
     emitters : list of dict or mi.Emitter
         The capture's lighting, e.g. ``[{"type": "constant"}]``.
     options : ImageFitOptions, optional
