@@ -184,6 +184,26 @@ def test_jpeg_decoded_reduced_keeps_the_dots_in_place(tmp_path):
     assert centroid_errors(view, points[inside], radius=4).max() < 0.1
 
 
+def test_a_jpeg_is_decoded_reduced_to_oversample_times_the_target(tmp_path, monkeypatch):
+    from mi_loop.io import capture
+
+    assert capture.OVERSAMPLE == 2
+    done = []
+
+    def spy(path, reduction=1):
+        px = read_pixels(path, reduction)
+        done.append((path.suffix, px.reduction, px.data.shape[:2]))
+        return px
+
+    monkeypatch.setattr(capture, "read_pixels", spy)
+    img = np.full((768, 1024), 0.3)
+    for suffix in (".jpg", ".png"):
+        path = write_photo(tmp_path, img, mask=img, suffix=suffix, fl_x=800.0)
+        for resolution in (128, 64, 600):
+            assert read_capture(path, resolution=resolution).views[0].camera.width == resolution
+    assert done == [(".jpg", r, (768 // r, 1024 // r)) for r in (4, 4, 8, 8, 1, 1)] + [(".png", 1, (768, 1024))] * 6
+
+
 def test_factor_scales_pixel_coordinates_exactly_and_crops_the_last_part_pixel(tmp_path):
     path = write_photo(tmp_path, np.full((H, W), 0.25), fl_x=FX, cx=CX, cy=CY)
     view = read_capture(path, factor=0.3).views[0]
