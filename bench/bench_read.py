@@ -117,6 +117,14 @@ def subset(path: Path, n: int) -> Path:
     return out
 
 
+def distorted(path: Path, k1: float) -> Path:
+    """The capture of ``path`` with camera_model SIMPLE_RADIAL and ``k1``, beside it."""
+    meta = json.loads(path.read_text())
+    out = path.with_name("transforms_k1.json")
+    out.write_text(json.dumps({**meta, "camera_model": "SIMPLE_RADIAL", "k1": k1}))
+    return out
+
+
 def run(path: Path, mode: str, resolution: int) -> dict:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     result = subprocess.run([sys.executable, "-c", CHILD, str(path), mode, str(resolution)], capture_output=True,
@@ -134,18 +142,21 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=400)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--old-subset", type=int, default=4)
+    parser.add_argument("--k1", type=float, default=None)
     args = parser.parse_args()
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     print(f"{time.strftime('%Y-%m-%d %H:%M')}, cores: os.cpu_count() {os.cpu_count()}, usable "
           f"{len(os.sched_getaffinity(0))}, commit {commit}, load {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     path = prepare(args.work, args.size, args.quality)
-    runs = [run(path, "new", args.resolution) for _ in range(args.runs)]
-    n, size = runs[0]["views"], runs[0]["size"]
-    med = {k: statistics.median(r[k] for r in runs) for k in ("read_s", "wall_s", "peak_gb")}
-    print(f"new: {n} photos {args.size}x{args.size} JPEG q{args.quality} -> {size[0]}x{size[1]}: "
-          f"read {med['read_s']:.2f} s (runs {', '.join(format(r['read_s'], '.2f') for r in runs)}), "
-          f"process {med['wall_s']:.2f} s, peak RSS {med['peak_gb']:.2f} GB (median of {args.runs})")
+    cases = [("new", path)] + ([(f"new, k1 = {args.k1}", distorted(path, args.k1))] if args.k1 else [])
+    for label, source in cases:
+        runs = [run(source, "new", args.resolution) for _ in range(args.runs)]
+        n, size = runs[0]["views"], runs[0]["size"]
+        med = {k: statistics.median(r[k] for r in runs) for k in ("read_s", "wall_s", "peak_gb")}
+        print(f"{label}: {n} photos {args.size}x{args.size} JPEG q{args.quality} -> {size[0]}x{size[1]}: "
+              f"read {med['read_s']:.2f} s (runs {', '.join(format(r['read_s'], '.2f') for r in runs)}), "
+              f"process {med['wall_s']:.2f} s, peak RSS {med['peak_gb']:.2f} GB (median of {args.runs})")
     if args.old_subset > 0:
         old = run(subset(path, args.old_subset), "old", args.resolution)
         print(f"old: {old['views']} photos decoded whole and kept, then resized to {old['size'][0]}x"
