@@ -28,7 +28,9 @@ def _frame_entry(view: View, file_path: str) -> dict:
 def write_capture(directory, views, *, name: str = "transforms.json") -> Path:
     """Write views as ``directory/images/NNN.png`` and a ``transforms.json``, atomically.
 
-    Images are 8-bit RGBA PNGs: sRGB-encoded colours, alpha = mask. Every frame
+    Images are 8-bit RGBA PNGs: sRGB-encoded colours, alpha = mask (a view's
+    ``valid`` is not written: its unseen pixels go out as they are held, rgb
+    and mask 0, and read back as background). Every frame
     carries its own ``fl_x fl_y cx cy w h`` and ``transform_matrix`` (floats
     written exactly); when all views share one centred, square-pixel camera the
     top level also gets ``camera_angle_x`` for readers that know only that.
