@@ -291,9 +291,9 @@ def _read_view(plan: _Plan, scale: float) -> View:
     fr = plan.fr
     target = plan.out if scale == 1 else scale_camera(plan.out, scale)
     if plan.ideal is None:                      # decoded at OVERSAMPLE times the target's size or more
-        most = math.floor(1 / (OVERSAMPLE * scale) + 1e-9)
+        most = max(1, math.floor(1 / (OVERSAMPLE * scale) + 1e-9))
     else:                                       # at OVERSAMPLE times the target's focal length or more
-        most = math.floor(min(plan.camera.fx, plan.camera.fy) / (OVERSAMPLE * target.fx) + 1e-9)
+        most = max(1, math.floor(min(plan.camera.fx, plan.camera.fy) / (OVERSAMPLE * target.fx) + 1e-9))
     px = _decode(plan.image, fr, "file_path", most)
     r, data = px.reduction, px.data
     c = data.shape[2]

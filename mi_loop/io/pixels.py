@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mi_loop.errors import fail
+
 __all__ = ["Pixels", "image_size", "read_pixels"]
 
 #: Reductions a JPEG decoder offers, largest first.
@@ -111,8 +113,11 @@ def read_pixels(path, reduction: int = 1) -> Pixels:
     Raises
     ------
     OSError, RuntimeError, SyntaxError, ValueError
-        An unreadable file (Pillow's and Mitsuba's exceptions, as they raise them).
+        An unreadable file (Pillow's and Mitsuba's exceptions, as they raise them);
+        ``ValueError`` for a reduction that is not an integer >= 1.
     """
+    if isinstance(reduction, bool) or not isinstance(reduction, (int, np.integer)) or reduction < 1:
+        fail("read_pixels", "an integer reduction >= 1", reduction)
     path = Path(path)
     if _by_mitsuba(path):
         import mitsuba as mi  # Bitmap is a core class: no variant needed

@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse
 
 from mi_loop.errors import fail
-from mi_loop.io.views import Camera
+from mi_loop.io.views import Camera, check_factor
 
 __all__ = ["LENS_MODELS", "Lens", "area_resize", "ideal_camera", "scale_camera", "undistort"]
 
@@ -184,12 +184,18 @@ def scale_camera(camera: Camera, scale: float) -> Camera:
         part-pixel cropped. :meth:`Camera.scaled` rounds the size instead and
         scales each axis by its own ratio.
 
+    Raises
+    ------
+    ValueError
+        A scale that is not finite and > 0.
+
     Examples
     --------
     >>> cam = scale_camera(Camera(np.eye(4), 100.0, 100.0, 50.0, 37.5, 100, 75), 0.1)
     >>> cam.fx, cam.cy, cam.width, cam.height
     (10.0, 3.75, 10, 7)
     """
+    scale = check_factor(scale, "scale_camera")
     w, h = (max(1, math.floor(n * scale + 1e-6)) for n in (camera.width, camera.height))
     return Camera(camera.c2w, camera.fx * scale, camera.fy * scale, camera.cx * scale, camera.cy * scale, w, h)
 
@@ -224,6 +230,11 @@ def area_resize(image: np.ndarray, size: tuple[int, int], extent: tuple[float, f
     -------
     (H, W) or (H, W, c) float32 NumPy array
 
+    Raises
+    ------
+    ValueError
+        A size below 1, an extent outside the image.
+
     Examples
     --------
     >>> area_resize(np.arange(6, dtype=np.float32).reshape(1, 6), (1, 2)).tolist()
@@ -232,6 +243,9 @@ def area_resize(image: np.ndarray, size: tuple[int, int], extent: tuple[float, f
     h, w = image.shape[:2]
     H, W = size
     ey, ex = (h, w) if extent is None else extent
+    if not (H >= 1 and W >= 1 and 0 < ey <= h and 0 < ex <= w):
+        fail("area_resize", f"a size >= 1 and an extent in (0, {h}] x (0, {w}]",
+             f"size {tuple(size)}, extent {(ey, ex)}")
     if (H, W, ey, ex) == (h, w, h, w):
         return image
     flat = image.reshape(h, -1)
@@ -268,9 +282,19 @@ def undistort(image: np.ndarray, camera: Camera, lens: Lens, target: Camera) -> 
         The target's image.
     seen : (H, W) float32 NumPy array
         The share of each pixel's samples that the photo saw, in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        A target with ``fx != fy``, an image of another size than ``camera``'s.
     """
     import cv2
 
+    if target.fx != target.fy:
+        fail("undistort", "a target with square pixels (fx == fy)", f"fx = {target.fx}, fy = {target.fy}")
+    if image.shape[:2] != (camera.height, camera.width):
+        fail("undistort", f"an image of the camera's size {camera.width} x {camera.height}",
+             f"{image.shape[1]} x {image.shape[0]}")
     h, w = image.shape[:2]
     f = target.fx
     m = max(1, math.ceil(max(camera.fx, camera.fy) / f - 1e-9))

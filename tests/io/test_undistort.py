@@ -264,3 +264,29 @@ def test_refusals_of_resolution_factor_and_distortion_read_as_stored(tmp_path):
             "read_capture(): expected a pinhole without distortion (read with undistort=True to undistort) for "
             f"frames[0].is_fisheye in '{fisheye}', got True")):
         read_capture(fisheye, undistort=False)
+
+
+def test_lens_and_resampling_functions_refuse_bad_input():
+    cam = Camera(np.eye(4), 10.0, 10.0, 5.0, 3.0, 10, 6)
+    from mi_loop.io.undistort import undistort
+
+    for make, message in [
+            (lambda: Lens("equirectangular"), "Lens(): expected a model in ('opencv', 'fisheye'), got "
+                                              "'equirectangular'"),
+            (lambda: Lens("fisheye", (0.1,) * 5), "Lens(): expected at most 4 finite coefficients for model "
+                                                  "'fisheye', got (0.1, 0.1, 0.1, 0.1, 0.1)"),
+            (lambda: Lens("opencv", (np.nan,)), "Lens(): expected at most 8 finite coefficients for model 'opencv', "
+                                                "got (nan,)"),
+            (lambda: scale_camera(cam, 0.0), "scale_camera(): expected a finite factor > 0, got 0.0"),
+            (lambda: area_resize(np.zeros((6, 10)), (3, 5), extent=(7, 10)),
+             "area_resize(): expected a size >= 1 and an extent in (0, 6] x (0, 10], got size (3, 5), extent (7, 10)"),
+            (lambda: area_resize(np.zeros((6, 10)), (0, 5)),
+             "area_resize(): expected a size >= 1 and an extent in (0, 6] x (0, 10], got size (0, 5), extent (6, 10)"),
+            (lambda: undistort(np.zeros((6, 10, 3), np.float32), cam, Lens(), Camera(np.eye(4), 5.0, 6.0, 2.5, 1.5,
+                                                                                      5, 3)),
+             "undistort(): expected a target with square pixels (fx == fy), got fx = 5.0, fy = 6.0"),
+            (lambda: undistort(np.zeros((5, 10, 3), np.float32), cam, Lens(), scale_camera(cam, 0.5)),
+             "undistort(): expected an image of the camera's size 10 x 6, got 10 x 5"),
+            (lambda: read_pixels("any.png", 0), "read_pixels(): expected an integer reduction >= 1, got 0")]:
+        with pytest.raises(ValueError, match=exactly(message)):
+            make()
