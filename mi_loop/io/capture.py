@@ -333,7 +333,9 @@ def read_capture(path, *, factor: float = 1.0, resolution: int | None = None, un
     Parameters
     ----------
     path : str or os.PathLike
-        The JSON file.
+        The JSON file, or a capture directory in any format
+        :func:`mi_loop.io.camera_formats.detect` recognises (IDR / NeuS,
+        LLFF, COLMAP, or one holding a ``transforms.json``).
     factor : float, optional
         Scale every view by exactly this factor as it is read, in (0, 1]: pixel
         coordinates ``x -> factor x``, the size ``floor(factor * size)`` (the last
@@ -370,11 +372,23 @@ def read_capture(path, *, factor: float = 1.0, resolution: int | None = None, un
         if factor != 1:
             fail("read_capture", "factor or resolution, not both", f"factor = {factor}, resolution = {resolution}")
     path = Path(path)
-    meta = _read_json(path)
+    fmt, meta = _load_meta(path)
     plans = [_plan(_Frame(path, meta, i), bool(undistort)) for i in range(len(meta["frames"]))]
     if resolution is not None:
         factor = min(1.0, resolution / max(max(p.out.width, p.out.height) for p in plans))
-    return Capture(tuple(_read_view(p, factor) for p in plans), path)
+    return Capture(tuple(_read_view(p, factor) for p in plans), path, fmt, meta.get("normalisation"))
+
+
+def _load_meta(path: Path) -> tuple[str, dict]:
+    """A ``transforms.json`` file's contents, or a capture directory's cameras in its form (any format)."""
+    if path.suffix.lower() == ".json" or not path.is_dir():
+        return "transforms", _read_json(path)
+    from mi_loop.io.camera_formats import load_meta
+
+    fmt, meta = load_meta(path)
+    if not meta.get("frames"):
+        fail("read_capture", f"at least one photo in the {fmt} capture '{path}'", "none")
+    return fmt, meta
 
 
 def list_captures(inputs, name: str = "transforms.json", where: str = "list_captures") -> list:

@@ -301,11 +301,18 @@ class Capture:
     views : tuple of View
         In the order of the JSON's ``frames``.
     path : pathlib.Path
-        The ``transforms.json`` file.
+        The ``transforms.json`` file, or the capture directory.
+    format : str
+        The camera format read (:data:`mi_loop.io.camera_formats.FORMATS`).
+    normalisation : list or None
+        IDR / NeuS: ``scale_mat`` (4 x 4), the sphere that capture's own tools
+        normalise to; the views stay in the cameras' world frame.
     """
 
     views: tuple
     path: Path
+    format: str = "transforms"
+    normalisation: list | None = None
 
 
 # -------------------------------------------------------------------- reading
