@@ -130,7 +130,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
 
     t0 = time.perf_counter()
     shot = read_capture(capture, resolution=options.resolution)     # straight to the finest stage's size
-    log.say(f"{capture}: {len(shot.views)} photos, read at {shot.views[0].camera.width}x"
+    log.say(f"{capture}: {shot.format} capture, {len(shot.views)} photos, read at {shot.views[0].camera.width}x"
             f"{shot.views[0].camera.height}")
     start = _start(init, log)
     created = io.first_missing_ancestor(output)
