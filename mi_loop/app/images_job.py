@@ -188,7 +188,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     views = [shot.views[i] for i in fitted]
     if held:
         log.say(f"holding out {len(held)} of the {len(shot.views)} photos (--holdout {options.holdout}): "
-                + ", ".join(shot.views[i].name for i in held))
+                + ", ".join(Path(shot.views[i].name).name for i in held))
     start = _start(init, log)
     created = io.first_missing_ancestor(output)
     out = io.ensure_writable_dir(output)
