@@ -213,7 +213,8 @@ def _payload(kind, V, F, N, distances: dict, colors, cage, names, fps) -> dict:
 
 
 def static_page(title: str, V, F, N, *, subtitle: str = "", distances=None, colors=None, points=None, cage=None,
-                creases=None, frusta=None, tables=None, loss_png: bytes | None = None, photos=None) -> str:
+                creases=None, frusta=None, tables=None, loss_png: bytes | None = None, photos=None,
+                figures=None) -> str:
     """Return the ``report.html`` of one surface (``fit``, ``fit-images``) as text.
 
     Parameters
@@ -246,6 +247,8 @@ def static_page(title: str, V, F, N, *, subtitle: str = "", distances=None, colo
         The loss plot, a PNG file.
     photos : list of ``(caption, photo_png, render_png)``, optional
         Photos next to renders of the fit from the same cameras.
+    figures : list of ``(caption, png)``, optional
+        More pictures, each under its own heading, below the photos (``holdout.png``).
 
     Returns
     -------
@@ -280,6 +283,8 @@ def static_page(title: str, V, F, N, *, subtitle: str = "", distances=None, colo
                         f"<figcaption>{html.escape(caption)}</figcaption></figure>" for caption, p, r in photos)
         below = (f'<section class="photos"><h2>Photos (left) and renders of the fit from the same cameras '
                  f"(right)</h2><div class=\"pairs\">{cells}</div></section>")
+    below += "".join(f'<section class="photos"><h2>{html.escape(caption)}</h2><figure>{_img(png, caption)}</figure>'
+                     "</section>" for caption, png in figures or ())
     return _page(title, subtitle, payload, _tables(tables), below, loss)
 
 

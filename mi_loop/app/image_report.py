@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["image_loss_plot", "progress_grid"]
+__all__ = ["holdout_grid", "image_loss_plot", "progress_grid"]
+
+#: Most views side by side in :func:`holdout_grid` (more wrap to further rows).
+HOLDOUT_COLUMNS = 6
 
 
 def image_loss_plot(history: list) -> np.ndarray:
@@ -60,3 +63,41 @@ def progress_grid(evaluation: dict, shown) -> np.ndarray:
     rows = [evaluation["targets"], evaluation["start"]["images"], evaluation["end"]["images"]]
     return np.concatenate([np.concatenate([linear_to_srgb(np.asarray(im)[..., :3]) for im in row], axis=1)
                            for row in rows], axis=0)
+
+
+def holdout_grid(photos, renders, columns: int = HOLDOUT_COLUMNS) -> np.ndarray:
+    """Held-out photos above renders of the fit from their cameras and the silhouettes' agreement.
+
+    Rows: the photo as taken, the render, and the masks (both thresholded at
+    0.5): white where both cover a pixel, red where only the photo's mask does,
+    blue where only the render does, black where neither (grey where the photo
+    saw nothing, ``valid < 0.5``). One column per view, ``columns`` to a band;
+    further views start a band below.
+
+    Parameters
+    ----------
+    photos, renders : list of mi_loop.io.View
+        The held-out views and the renders of the fit from the same cameras (one size).
+    columns : int
+        Views per band, >= 1.
+
+    Returns
+    -------
+    (3 h bands, min(n, columns) w, 3) float32 NumPy array
+        sRGB values in [0, 1] (empty cells black).
+    """
+    from mi_loop.io.srgb import linear_to_srgb
+
+    cells = []
+    for photo, render in zip(photos, renders):
+        p, r = photo.mask >= 0.5, render.mask >= 0.5
+        agree = np.zeros(p.shape + (3,), np.float32)
+        agree[p & r], agree[p & ~r], agree[~p & r] = 1.0, (1.0, 0.1, 0.1), (0.2, 0.4, 1.0)
+        if photo.valid is not None:
+            agree[photo.valid < 0.5] = 0.5
+        cells.append(np.concatenate([linear_to_srgb(photo.rgb), linear_to_srgb(render.rgb), agree], axis=0))
+    columns = min(columns, len(cells))
+    blank = np.zeros_like(cells[0])
+    cells += [blank] * (-len(cells) % columns)
+    bands = [np.concatenate(cells[j:j + columns], axis=1) for j in range(0, len(cells), columns)]
+    return np.concatenate(bands, axis=0).astype(np.float32)

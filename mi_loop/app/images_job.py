@@ -19,7 +19,21 @@ Outputs (written together at the end, nothing half-written):
   same cameras, the per-view losses and the loss plot;
 - ``progress.png``: four photos (composited over the lighting) and the
   renders of the start and of the fit from the same cameras;
-- ``loss.png``: the image loss per iteration, stages marked.
+- ``loss.png``: the image loss per iteration, stages marked;
+- ``holdout.png`` (with ``--holdout K``): the photos left out of the fit, renders
+  of the fit from their cameras, and where the silhouettes agree.
+
+Held-out views (``--holdout K``, :mod:`mi_loop.fitting.holdout`): the photos
+``i % K == K - 1`` are left out of everything the fit sees (the hull, the
+template, the image loss); ``views`` lists the fitted ones. Afterwards each
+held-out photo is rendered from the fitted limit surface (the fit's
+tessellation level, its albedo, the lighting, at the finest stage's size,
+:func:`~mi_loop.render.captures.render_views`) and scored: the silhouette IoU
+of the render's alpha against the photo's mask, and the PSNR of sRGB values
+inside the photo's mask (both thresholded at 0.5; pixels the photo did not see,
+``valid < 0.5``, left out). ``report.json``'s ``holdout`` holds ``k``, each
+view's ``index``, ``name``, ``iou`` and ``psnr_db``, and their means and
+medians (null without ``--holdout``).
 """
 from __future__ import annotations
 
@@ -59,6 +73,7 @@ def _start(init: Path | None, log):
 
 
 def _finest(views, options: ImageFitOptions):
+    """The views at the finest stage's size (as read: :func:`run` reads at ``options.resolution``)."""
     longest = max(max(v.camera.width, v.camera.height) for v in views)
     scale = 1.0 if options.resolution is None else min(1.0, options.resolution / longest)
     return [v.resized(scale) if scale < 1 else v for v in views]
@@ -87,6 +102,39 @@ def _evaluate(result, views, emitters, options, log):
     return out, shown
 
 
+def _holdout(result, views, held, emitters, options, log) -> dict:
+    """Render the held-out photos ``held`` (indices into ``views``) from the fit and score them (module docstring)."""
+    from mi_loop.fitting.holdout import masked_psnr, silhouette_iou
+    from mi_loop.fitting.images import tessellation_level
+    from mi_loop.io.srgb import linear_to_srgb
+    from mi_loop.render.captures import render_views
+
+    photos = _finest([views[i] for i in held], options)
+    P, F, N, C = _limit(result.V, result.F, result.albedo, tessellation_level(len(result.F), options.triangles))
+    renders = render_views(P, F, [v.camera for v in photos], emitters, colors=C, normals=N, spp=4 * options.spp,
+                           seed=7)
+    scores = [{"index": i, "name": photo.name, "iou": silhouette_iou(render.mask, photo.mask, photo.valid),
+               "psnr_db": masked_psnr(linear_to_srgb(render.rgb), linear_to_srgb(photo.rgb), photo.mask, photo.valid)}
+              for i, photo, render in zip(held, photos, renders)]
+    section = {"k": options.holdout, "rule": "photos i with i % k == k - 1",
+               "psnr": "sRGB in [0, 1], inside the photo's mask", "views": scores,
+               **_summary(scores, "iou", "iou"), **_summary(scores, "psnr_db", "psnr")}
+    log.say(f"held out {len(held)} views: IoU median {section['iou_median']:.3f}, "
+            f"PSNR median {section['psnr_median_db']:.2f} dB")
+    for s in scores:                    # JSON has no NaN: null where a view had nothing to score
+        s.update({key: s[key] if np.isfinite(s[key]) else None for key in ("iou", "psnr_db")})
+    return section, photos, renders
+
+
+def _summary(scores, key: str, name: str) -> dict:
+    """Mean and median of ``key`` over the views where it is finite (NaN: none is)."""
+    x = np.array([s[key] for s in scores], dtype=float)
+    x = x[np.isfinite(x)]
+    unit = "_db" if key.endswith("_db") else ""
+    return {f"{name}_mean{unit}": float(x.mean()) if len(x) else float("nan"),
+            f"{name}_median{unit}": float(np.median(x)) if len(x) else float("nan")}
+
+
 def _limit(V, F, albedo, level: int = 3):
     return static_view(V, F, level, albedo=albedo)
 
@@ -98,10 +146,13 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     Parameters
     ----------
     capture : pathlib.Path
-        ``transforms.json`` of the photos.
+        ``transforms.json`` of the photos, read at ``options.resolution``, the
+        finest stage's longest side (:func:`~mi_loop.io.capture.read_capture`:
+        undistorted, JPEGs decoded reduced, no photo kept at full size).
     output : pathlib.Path
         OUTDIR (created).
     options : ImageFitOptions
+        With ``holdout`` K, every K-th photo is left out of the fit and scored (module docstring).
     init : pathlib.Path, optional
         Start control mesh (instead of ``options.init``).
     emitters : pathlib.Path, optional
@@ -115,19 +166,29 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
     Returns
     -------
     list of pathlib.Path
-        The written files (:data:`OUTPUTS` in OUTDIR).
+        The written files (:data:`OUTPUTS` in OUTDIR, and ``holdout.png`` with ``options.holdout``).
     """
-    from mi_loop.app.image_report import image_loss_plot, progress_grid
+    from mi_loop.app.image_report import holdout_grid, image_loss_plot, progress_grid
     from mi_loop.app.report import plain
     from mi_loop.app.report_data import images_page
+    from mi_loop.fitting.holdout import split_views
     from mi_loop.fitting.images import fit_images
     from mi_loop.io.capture import read_capture
     from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
     from mi_loop.render.variant import set_variant
 
     t0 = time.perf_counter()
-    shot = read_capture(capture)
-    log.say(f"{capture}: {len(shot.views)} photos, {shot.views[0].camera.width}x{shot.views[0].camera.height}")
+    shot = read_capture(capture, resolution=options.resolution)     # straight to the finest stage's size
+    log.say(f"{capture}: {shot.format} capture, {len(shot.views)} photos, read at {shot.views[0].camera.width}x"
+            f"{shot.views[0].camera.height}")
+    try:
+        fitted, held = split_views(len(shot.views), options.holdout)
+    except ValueError as error:
+        raise ValueError(f"fit-images --holdout: {str(error).removeprefix('split_views(): ')} ({capture})") from None
+    views = [shot.views[i] for i in fitted]
+    if held:
+        log.say(f"holding out {len(held)} of the {len(shot.views)} photos (--holdout {options.holdout}): "
+                + ", ".join(Path(shot.views[i].name).name for i in held))
     start = _start(init, log)
     created = io.first_missing_ancestor(output)
     out = io.ensure_writable_dir(output)
@@ -137,13 +198,17 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
         timings = {"read": time.perf_counter() - t0}
         t = time.perf_counter()
         with log.bar("fitting") as update:
-            result = fit_images(shot.views, lights, options, start=start,
+            result = fit_images(views, lights, options, start=start,
                                 progress=lambda i, n, k, loss: update(i, n, f"stage {k} L1={loss:.4f}"))
         timings["fit"] = time.perf_counter() - t
         stages = ", ".join(f"{s['n_vertices']} vertices at {s['width']}x{s['height']}" for s in result.stages)
         log.say(f"fitted {len(result.V)} control vertices ({stages}) in {timings['fit']:.1f} s")
         t = time.perf_counter()
-        evaluation, shown = _evaluate(result, shot.views, lights, options, log)
+        evaluation, shown = _evaluate(result, views, lights, options, log)
+        holdout, held_grid = None, None
+        if held:
+            holdout, photos, renders = _holdout(result, shot.views, held, lights, options, log)
+            held_grid = holdout_grid(photos, renders)
         limit = _limit(result.V, result.F, result.albedo)
         view = _limit(result.V, result.F, result.albedo, view_level)    # (V, F, N, colours): limit.glb, the report
         grid, loss = progress_grid(evaluation, shown), image_loss_plot(result.history)
@@ -153,10 +218,10 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
                   "stages": result.stages, "parameters": {"control_points": result.V.size,
                                                           "albedo": result.albedo.size if options.albedo_lr > 0 else 0},
                   "views": [{"name": v.name, "loss_start": s, "loss_end": e} for v, s, e in
-                            zip(shot.views, evaluation["start"]["losses"], evaluation["end"]["losses"])],
-                  "timings_s": timings, "machine": platform.node(), "variant": variant}
+                            zip(views, evaluation["start"]["losses"], evaluation["end"]["losses"])],
+                  "holdout": holdout, "timings_s": timings, "machine": platform.node(), "variant": variant}
         t = time.perf_counter()
-        page = images_page(result, view, shot.views, evaluation, shown, report, loss)
+        page = images_page(result, view, views, evaluation, shown, report, loss, holdout_png=held_grid)
         timings["report_html"] = time.perf_counter() - t
         with io.staged_outputs(out) as stage:
             io.write_ply(stage / "control.ply", result.V, result.F, colors=np.clip(result.albedo, 0, 1))
@@ -166,9 +231,11 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
             io.write_text(stage / "report.html", page)
             io.write_png(stage / "progress.png", grid)
             io.write_png(stage / "loss.png", loss)
+            if held:
+                io.write_png(stage / "holdout.png", held_grid)
     except BaseException:
         io.remove_if_empty(created, out)
         raise
-    paths = [out / name for name in OUTPUTS]
+    paths = [out / name for name in OUTPUTS + (("holdout.png",) if held else ())]
     log.wrote(*paths)
     return paths

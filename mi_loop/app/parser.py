@@ -309,7 +309,8 @@ def _images_parser(sub, common) -> None:
                                    "(NeRF/Blender transforms.json) through Mitsuba's differentiable "
                                    "renderer: silhouettes (the masks: alpha or mask_path) and shading, "
                                    "coarse to fine by exact Loop refinement.")
-    p.add_argument("capture", type=Path, help="transforms.json of the photos")
+    p.add_argument("capture", type=Path, help="the photos and their cameras: a transforms.json, or a directory of an "
+                   "IDR / NeuS (cameras_sphere.npz), LLFF (poses_bounds.npy) or COLMAP (sparse/0) capture")
     _output(p)
     _emitters(p)
     add_options(p, ImageFitOptions)

@@ -229,7 +229,7 @@ def fit_page(result, view, level: int, target, report: dict, loss, clean=None) -
         creases=creases, tables=_fit_tables(report), loss_png=png_bytes(loss))
 
 
-def images_page(result, view, views, evaluation: dict, shown, report: dict, loss) -> str:
+def images_page(result, view, views, evaluation: dict, shown, report: dict, loss, holdout_png=None) -> str:
     """``report.html`` of ``mi-loop fit-images``: coloured by the albedo, with photos, renders and frusta.
 
     Parameters
@@ -239,7 +239,7 @@ def images_page(result, view, views, evaluation: dict, shown, report: dict, loss
     view : tuple ``(V (k, 3), F (m, 3), N (k, 3), colours (k, 3))``
         The viewer's limit tessellation with the albedo carried to it.
     views : list of mi_loop.io.View
-        The capture's photos (their cameras are drawn).
+        The fitted photos (their cameras are drawn).
     evaluation : dict
         ``targets`` and ``end['images']``: photos and renders of the fit (linear RGB) of the ``shown`` views.
     shown : list of int
@@ -248,6 +248,9 @@ def images_page(result, view, views, evaluation: dict, shown, report: dict, loss
         The job's ``report.json``.
     loss : (h, w, 3) uint8 NumPy array
         The loss plot.
+    holdout_png : (h, w, 3) float NumPy array, optional
+        ``holdout.png`` (:func:`~mi_loop.app.image_report.holdout_grid`), shown with
+        ``report['holdout']``'s scores as a table.
 
     Returns
     -------
@@ -267,10 +270,26 @@ def images_page(result, view, views, evaluation: dict, shown, report: dict, loss
                                               for v in report["views"]},
               "stages": {f"stage {k}": f"{s['n_vertices']} vertices at {s['width']}x{s['height']}, "
                                        f"{s.get('iterations', '')} iterations" for k, s in enumerate(report["stages"])}}
+    figures = []
+    if report.get("holdout"):
+        held = report["holdout"]
+        tables["held-out photos: silhouette IoU, PSNR (sRGB, inside the mask)"] = {
+            **{f"{v['index']}: {v['name']}": f"{_score(v['iou'], 3)}, {_score(v['psnr_db'], 2)} dB"
+               for v in held["views"]},
+            "median": f"{held['iou_median']:.3f}, {held['psnr_median_db']:.2f} dB",
+            "mean": f"{held['iou_mean']:.3f}, {held['psnr_mean_db']:.2f} dB"}
+        figures.append((f"{len(held['views'])} photos held out of the fit (--holdout {held['k']}): photos, renders "
+                        "of the fit, silhouettes (white both, red the photo's mask only, blue the render only)",
+                        png_bytes(holdout_png)))
     return html_report.static_page(
         "mi-loop fit-images", V, F, N, subtitle=f"{report['input']}: {len(views)} photos, {len(result.V)} control "
         "vertices", colors=C, cage=(result.V, result.F), frusta=frustum_segments([v.camera for v in views], depth),
-        tables=tables, loss_png=png_bytes(loss), photos=photos)
+        tables=tables, loss_png=png_bytes(loss), photos=photos, figures=figures)
+
+
+def _score(x, digits: int) -> str:
+    """A score for a table: ``digits`` decimals, ``-`` where none (null)."""
+    return "-" if x is None else f"{x:.{digits}f}"
 
 
 def sequence_report(view, names, targets, cages, rows, fps: float, *, title: str = "mi-loop fit-sequence") -> str:

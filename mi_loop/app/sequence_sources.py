@@ -120,7 +120,7 @@ def read_views(path: Path, t: int, frame) -> list:
     if len(views) < 2:
         raise ValueError(expected("fit-sequence --images", f"at least two photos in '{path}' (frame {t})",
                                   f"{len(views)}"))
-    if all(v.mask.min() >= 1.0 for v in views):
+    if all((v.mask if v.valid is None else v.mask[v.valid > 0]).min() >= 1.0 for v in views):   # seen pixels
         raise ValueError(expected("fit-sequence --images", f"masks in the capture of frame {t} (an alpha "
                                   "channel or mask_path: the silhouettes come from them)",
                                   f"none in '{path}' (every pixel of every photo is foreground)"))

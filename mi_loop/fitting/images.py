@@ -32,7 +32,11 @@ from mi_loop.errors import fail
 from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.fitting.rules import Seeds
 
-__all__ = ["ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh", "tessellation_level"]
+__all__ = ["HULL_RESOLUTION", "ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh",
+           "tessellation_level"]
+
+#: Voxels along each side of the visual hull's grid (:func:`mi_loop.fitting.hull.carve`).
+HULL_RESOLUTION = 96
 
 
 @dataclass
@@ -56,6 +60,12 @@ class ImageFitResult:
         ``stalled`` (ended on the stall rule), ``time_s``.
     bbox : ((3,), (3,)) float64
         The visual hull's box (sets the scale of the steps).
+    start : dict
+        How the start mesh was made: ``init``; ``hull``, the carving's counts
+        (:attr:`mi_loop.fitting.hull.Carving.info`, and ``unoriented``: boundary
+        points without a normal, left out); ``template``, the template's
+        ``n_points``, ``dropped_normals``, ``vertices``, ``faces``, ``genus``,
+        ``boundary_edges``. Empty for a given start mesh.
     """
 
     V: np.ndarray
@@ -67,6 +77,7 @@ class ImageFitResult:
     history: list = field(default_factory=list)
     stages: list = field(default_factory=list)
     bbox: tuple = ()
+    start: dict = field(default_factory=dict)
 
 
 def refine(V, F, albedo=None):
@@ -111,11 +122,26 @@ def start_mesh(views, options: ImageFitOptions):
     F : (m, 3) int64 NumPy array
     bbox : ((3,), (3,)) float64 NumPy arrays
         The visual hull's box.
-    """
-    from mi_loop.datasets import icosphere
-    from mi_loop.fitting.hull import visual_hull
 
-    P, N, bbox = visual_hull(views, resolution=96)
+    Raises
+    ------
+    ValueError
+        Nothing left of the grid after carving (masks that contradict each other).
+    """
+    return _start_mesh(views, options)[:3]
+
+
+def _start_mesh(views, options: ImageFitOptions):
+    """:func:`start_mesh` and what it did: ``(V, F, bbox, info)``, ``info`` the carving's counts and the template's."""
+    from mi_loop.datasets import icosphere
+    from mi_loop.fitting.hull import carve, hull_points
+
+    carving = carve(views, resolution=HULL_RESOLUTION)
+    if not carving.occupied.any():
+        fail("fit_images", "masks whose foregrounds overlap in space (a visual hull)", "nothing left after carving")
+    kept = carving.centres[carving.occupied]
+    bbox = (kept.min(axis=0), kept.max(axis=0))
+    info = {"init": options.init, "hull": dict(carving.info)}
     n0 = options.n_vertices
     for _ in range(options.refinements):      # closed genus 0: one step maps n to 4 n - 6
         n0 = (n0 + 6) // 4
@@ -123,11 +149,15 @@ def start_mesh(views, options: ImageFitOptions):
         s = max(s for s in range(8) if 10 * 4 ** s + 2 <= max(n0, 12)) if n0 >= 12 else 0
         V, F = icosphere(s)
         lo, hi = bbox
-        return 0.5 * (lo + hi) + V * (0.5 * (hi - lo)), F, bbox
+        return 0.5 * (lo + hi) + V * (0.5 * (hi - lo)), F, bbox, info
     from mi_loop.fitting.template import make_template
 
-    V, F, _ = make_template(P, N, max(n0, 12), seed=options.seed)
-    return V, F, bbox
+    P, N, unoriented = hull_points(carving)
+    V, F, tinfo = make_template(P, N, max(n0, 12), seed=options.seed, zero_normals="drop")
+    info["hull"]["unoriented"] = unoriented
+    info["template"] = {k: tinfo[k] for k in ("n_points", "dropped_normals", "vertices", "faces", "genus",
+                                              "boundary_edges")}
+    return V, F, bbox, info
 
 
 def tessellation_level(n_faces: int, triangles: int) -> int:
@@ -184,7 +214,7 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     Parameters
     ----------
     views : sequence of mi_loop.io.capture.View
-        Photos with masks and cameras (full resolution; stages resize them).
+        Photos with masks and cameras (at the finest stage's size or larger; stages resize them).
     emitters : list of dict or mi.Emitter
         The capture's lighting, e.g. ``[{"type": "constant"}]``.
     options : ImageFitOptions, optional
@@ -210,13 +240,13 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
         fail("fit_images", "at least two photos", f"{len(views)}")
     t0 = time.perf_counter()
     if start is None:
-        V, F, bbox = start_mesh(views, options)
+        V, F, bbox, how = _start_mesh(views, options)
     else:
         V, F = (np.asarray(a) for a in start)
         V, F = V.astype(np.float64), F.astype(np.int64)
-        bbox = (V.min(axis=0), V.max(axis=0))
+        bbox, how = (V.min(axis=0), V.max(axis=0)), {}
     c = np.full(V.shape, float(options.albedo))
-    result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox)
+    result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox, start=how)
     size = (max(v.camera.width for v in views), max(v.camera.height for v in views))
     plan = stage_plan(options, size, len(F))
     total = sum(p["iterations"] for p in plan)

@@ -28,6 +28,7 @@ from mi_loop.fitting.declarations import (
     SEED,
     WEIGHT,
     OptionError,
+    Rule,
     at_least,
     check_fields,
     integers,
@@ -51,6 +52,8 @@ N_VERTICES = 1000     # control vertices of the automatic template
 SAMPLES = "level1"    # the points of a level-1 tessellation: about 4x the control vertices
 COVER = 3.0           # weight of the coverage term (data points pull their nearest samples)
 FOLD = 0.01           # weight of the static fit's fold barrier (limit normals against the data's)
+#: ``--holdout K``: 0 (off) or every K-th photo, K >= 2 (K = 1 would leave nothing to fit).
+HOLDOUT = Rule(lambda v: SEED.ok(v) and v != 1, "0 (off) or an integer >= 2", int)
 
 
 # -- help texts that several fields share ----------------------------------------------
@@ -377,6 +380,11 @@ class ImageFitOptions:
         Seed of the view order and of the renders.
     deterministic : bool
         Bit-reproducible runs: reverse renders on one thread (slower).
+    holdout : int
+        ``K``: ``mi-loop fit-images`` leaves every ``K``-th photo (``i % K == K - 1``)
+        out of the fit and scores the fit on them (:mod:`mi_loop.fitting.holdout`);
+        0: none, else >= 2. :func:`~mi_loop.fitting.images.fit_images` fits the
+        views it is given.
     """
 
     n_vertices: int = option(900, rule=at_least(4), flag="--vertices", metavar="N",
@@ -422,6 +430,9 @@ class ImageFitOptions:
                                                            "with --deterministic "))
     deterministic: bool = option(False, rule=FLAG,
                                  help="bit-reproducible fit: the reverse renders run on one thread (slower)")
+    holdout: int = option(0, rule=HOLDOUT, metavar="K",
+                          help="leave every K-th photo (the K-th, 2K-th, ...) out of the fit and score the fit on "
+                               "them: silhouette IoU and PSNR inside the mask (default %(default)s: off)")
 
     def __post_init__(self):
         check_fields(self)

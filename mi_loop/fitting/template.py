@@ -79,7 +79,7 @@ def poisson_depth(n_vertices: int) -> int:
 
 def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0,
                   min_angle: float = 10.0, threads: int = 1, max_points: int = 500_000, *,
-                  point_weight: float = 4.0, samples_per_node: float = 1.5):
+                  point_weight: float = 4.0, samples_per_node: float = 1.5, zero_normals: str = "raise"):
     """Reconstruct a closed manifold triangle control mesh with about ``n_vertices`` vertices.
 
     Parameters
@@ -87,7 +87,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     P : (k, 3) float NumPy array
         Points.
     N : (k, 3) float NumPy array
-        Oriented normals (outward), any non-zero length.
+        Oriented normals (outward), any non-zero length (but see ``zero_normals``).
     n_vertices : int
         Target vertex count, at least 4 and at most ``k // 2``.
     depth : int or None
@@ -106,6 +106,11 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
         first and raises the second with the noise level.
     max_points : int
         Inputs larger than this are randomly subsampled before Poisson.
+    zero_normals : {'raise', 'drop'}
+        What a normal of zero length does: raise (a user's point cloud: say
+        to estimate normals), or drop its point (points a program derived,
+        such as a visual hull's, where a few may have no orientation);
+        ``info["dropped_normals"]`` counts them.
 
     Returns
     -------
@@ -117,7 +122,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
         surface is open), oriented like the input normals.
     info : dict
         ``depth``, ``n_points``, ``poisson_vertices`` (largest component),
-        ``poisson_components``, ``vertices``, ``faces``, ``genus`` (None if open),
+        ``poisson_components``, ``dropped_normals``, ``vertices``, ``faces``, ``genus`` (None if open),
         ``boundary_edges`` (0: closed),
         ``min_angle`` (degrees, achieved), ``flips``, ``collapses``,
         ``time_poisson``, ``time_decimate``, ``time_cleanup``, ``time_total``
@@ -126,7 +131,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     Raises
     ------
     ValueError
-        Bad shapes, non-finite values, zero normals, ``n_vertices < 4``,
+        Bad shapes, non-finite values, zero normals (with ``zero_normals='raise'``), ``n_vertices < 4``,
         ``n_vertices > k // 2`` or above half the Poisson mesh's vertex
         count (say to raise ``depth``), bad ``depth``/``min_angle``, or a
         result that still fails :func:`mi_loop.validate_mesh`.
@@ -141,7 +146,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     input normals (area-weighted, nearest input point per face).
     """
     t0 = time.perf_counter()
-    P, N, n_vertices, depth = _check_inputs(P, N, n_vertices, depth, min_angle, max_points)
+    P, N, n_vertices, depth, dropped = _check_inputs(P, N, n_vertices, depth, min_angle, max_points, zero_normals)
     if len(P) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(P), max_points, replace=False))
         P, N = P[keep], N[keep]
@@ -159,7 +164,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     t3 = time.perf_counter()
     chi, n_boundary = euler_characteristic(len(V), F)
     info = {"depth": depth, "point_weight": float(point_weight), "samples_per_node": float(samples_per_node),
-            "n_points": len(P), "poisson_vertices": len(Vp), "poisson_components": n_comp,
+            "n_points": len(P), "dropped_normals": dropped, "poisson_vertices": len(Vp), "poisson_components": n_comp,
             "vertices": len(V), "faces": len(F), "genus": (2 - chi) // 2 if n_boundary == 0 else None,
             "boundary_edges": n_boundary,
             "min_angle": stats["min_angle"], "flips": stats["flips"], "collapses": stats["collapses"],
@@ -250,17 +255,21 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool =
     return Vd, Fd, info
 
 
-def _check_inputs(P, N, n_vertices, depth, min_angle, max_points):
+def _check_inputs(P, N, n_vertices, depth, min_angle, max_points, zero_normals):
     P = np.asarray(P, dtype=np.float64)
     N = np.asarray(N, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or N.shape != P.shape:
         _fail(f"P and N must both have shape (k, 3), got {P.shape} and {N.shape}")
+    if zero_normals not in ("raise", "drop"):
+        _fail(f"zero_normals must be 'raise' or 'drop', got {zero_normals!r}")
     bad = np.flatnonzero(~np.isfinite(P).all(1) | ~np.isfinite(N).all(1))
     if len(bad):
         _fail(f"point or normal {bad[0]} is not finite: {P[bad[0]].tolist()}, {N[bad[0]].tolist()}")
     bad = np.flatnonzero(~(np.linalg.norm(N, axis=1) > 0))
-    if len(bad):
+    if len(bad) and zero_normals == "raise":
         _fail(f"normal {bad[0]} has zero length; estimate normals first (mi_loop.mesh.points.estimate_normals)")
+    if len(bad):
+        P, N = np.delete(P, bad, axis=0), np.delete(N, bad, axis=0)
     if isinstance(n_vertices, bool) or not isinstance(n_vertices, (int, np.integer)) or n_vertices < 4:
         _fail(f"n_vertices must be an integer >= 4, got {n_vertices!r}")
     if n_vertices > len(P) // 2:
@@ -273,7 +282,7 @@ def _check_inputs(P, N, n_vertices, depth, min_angle, max_points):
         _fail(f"min_angle must be in [0, 20] degrees, got {min_angle!r}")
     if not max_points >= 1000:
         _fail(f"max_points must be at least 1000, got {max_points!r}")
-    return P, N / np.linalg.norm(N, axis=1, keepdims=True), int(n_vertices), int(depth)
+    return P, N / np.linalg.norm(N, axis=1, keepdims=True), int(n_vertices), int(depth), len(bad)
 
 
 def _poisson(P, N, depth, threads, point_weight=4.0, samples_per_node=1.5):

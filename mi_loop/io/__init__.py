@@ -19,8 +19,10 @@ through it); it sits just above :mod:`mi_loop.mesh`.
   through :mod:`~mi_loop.io.gltf` (GLB / glTF container, accessors, base colours);
 - :mod:`~mi_loop.io.points`: :func:`load_oriented_points` (point clouds, or meshes sampled);
 - :mod:`~mi_loop.io.capture`: calibrated multi-view captures, NeRF / Blender ``transforms.json``
-  (:func:`read_capture`, :func:`write_capture`), with the data classes of :mod:`~mi_loop.io.views`
-  (:class:`Camera`, :class:`View`, :class:`Capture`);
+  (:func:`read_capture`, :func:`write_capture` from :mod:`~mi_loop.io.capture_writer`), with the
+  data classes of :mod:`~mi_loop.io.views` (:class:`Camera`, :class:`View`, :class:`Capture`);
+  photos decoded by :mod:`~mi_loop.io.pixels` (JPEGs reduced at decode time) and resampled to
+  ideal pinholes by :mod:`~mi_loop.io.undistort` (OpenCV's lens models, area averaging);
 - :mod:`~mi_loop.io.formats`, :mod:`~mi_loop.io.ply`: the file formats, as polygon lists;
 - :mod:`~mi_loop.io.srgb`: the sRGB curve (:func:`srgb_to_linear`, :func:`linear_to_srgb`);
 - :mod:`~mi_loop.io.files`: atomic writes (:func:`write_png`, :func:`write_text`),

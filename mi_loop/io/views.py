@@ -1,7 +1,8 @@
 """Pinhole cameras and calibrated views: the data of a capture (NumPy; see :mod:`mi_loop.io.capture`).
 
 - :class:`Camera`: intrinsics in pixels and a camera-to-world matrix, NeRF/OpenGL axes;
-- :class:`View`: a camera, its image in linear RGB and a foreground mask, resizable;
+- :class:`View`: a camera, its image in linear RGB, a foreground mask and, for an undistorted
+  photo, the share of each pixel the photo saw; resizable;
 - :class:`Capture`: the views of one ``transforms.json``.
 """
 from __future__ import annotations
@@ -198,7 +199,7 @@ def _box_average(a: np.ndarray, m: int, axis: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class View:
-    """One calibrated image: camera, linear RGB, foreground mask.
+    """One calibrated image: camera, linear RGB, foreground mask, and which pixels the photo saw.
 
     Attributes
     ----------
@@ -210,18 +211,27 @@ class View:
         Foreground in [0, 1] (alpha or ``mask_path``; ones when there is neither).
     name : str
         The frame's ``file_path`` as the JSON writes it.
+    valid : (height, width) float32 NumPy array or None
+        The share of each pixel that the photo saw, in [0, 1]; None (the
+        default): all of every pixel. An undistorted photo
+        (:func:`~mi_loop.io.undistort.undistort`) does not fill its pinhole
+        image: where ``valid`` is 0 nothing is known (``rgb`` and ``mask`` are
+        0 there, and mean neither background nor black), elsewhere ``rgb`` and
+        ``mask`` are means over the seen part. A loss or a carving that reads
+        ``mask`` should weight each pixel by ``valid``.
 
     Raises
     ------
     ValueError
         Arrays whose shape differs from the camera's image, non-finite pixels,
-        mask values outside [0, 1].
+        mask or valid values outside [0, 1].
     """
 
     camera: Camera
     rgb: np.ndarray
     mask: np.ndarray
     name: str
+    valid: np.ndarray | None = None
 
     def __post_init__(self):
         if not isinstance(self.camera, Camera):
@@ -242,12 +252,22 @@ class View:
         object.__setattr__(self, "rgb", rgb)
         object.__setattr__(self, "mask", mask)
         object.__setattr__(self, "name", str(self.name))
+        if self.valid is not None:
+            valid = np.ascontiguousarray(self.valid, dtype=np.float32)
+            if valid.shape != (h, w):
+                fail("View", f"valid of shape (h, w) = {(h, w)} as the camera, or None", f"shape {valid.shape}")
+            bad = ~((valid >= 0) & (valid <= 1))
+            if bad.any():
+                fail("View", "valid values in [0, 1]", f"{valid[bad][0]} at pixel {np.argwhere(bad)[0].tolist()}")
+            object.__setattr__(self, "valid", valid)
 
     def resized(self, factor: float) -> View:
         """Return the view downsampled by ``factor`` (area-averaged rgb and mask, :meth:`Camera.scaled`).
 
         Every new pixel is the mean of the old image over its footprint
-        (``old / new`` pixels on each axis, fractional pixels weighted by their area).
+        (``old / new`` pixels on each axis, fractional pixels weighted by their
+        area); with ``valid``, the mean over the seen part (weighted by ``valid``),
+        and ``valid`` the mean of the old.
 
         Parameters
         ----------
@@ -263,7 +283,13 @@ class View:
             return self
         def resample(a):
             return _box_average(_box_average(a, camera.height, 0), camera.width, 1)
-        return View(camera, resample(self.rgb), np.clip(resample(self.mask), 0, 1), self.name)
+        if self.valid is None:
+            return View(camera, resample(self.rgb), np.clip(resample(self.mask), 0, 1), self.name)
+        valid = resample(self.valid)
+        seen = np.where(valid > 0, valid, 1.0)
+        rgb = resample(self.rgb * self.valid[..., None]) / seen[..., None]
+        mask = resample(self.mask * self.valid) / seen
+        return View(camera, rgb, np.clip(mask, 0, 1), self.name, np.clip(valid, 0, 1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -275,11 +301,18 @@ class Capture:
     views : tuple of View
         In the order of the JSON's ``frames``.
     path : pathlib.Path
-        The ``transforms.json`` file.
+        The ``transforms.json`` file, or the capture directory.
+    format : str
+        The camera format read (:data:`mi_loop.io.camera_formats.FORMATS`).
+    normalisation : list or None
+        IDR / NeuS: ``scale_mat`` (4 x 4), the sphere that capture's own tools
+        normalise to; the views stay in the cameras' world frame.
     """
 
     views: tuple
     path: Path
+    format: str = "transforms"
+    normalisation: list | None = None
 
 
 # -------------------------------------------------------------------- reading

@@ -7,7 +7,9 @@
 - :mod:`~mi_loop.render.scene`: scenes around one shape, the rig's lights, single renders;
 - :mod:`~mi_loop.render.images`: the differentiable image loss against photos or rendered
   targets (:class:`~mi_loop.render.images.ImageRenderer`);
-- :mod:`~mi_loop.render.captures`: rendered targets and synthetic captures, the per-view seed.
+- :mod:`~mi_loop.render.captures`: rendered targets and synthetic captures, the per-view seed;
+- :mod:`~mi_loop.render.mask_trust`: which mask pixels the visual hull and the image loss
+  believe (the uncertainty band, the frame's border, unseen pixels; NumPy).
 
 The single-render helpers of :mod:`~mi_loop.render.scene` are available here too
 (``from mi_loop import render; render.render_view(...)``, as in 0.1); importing

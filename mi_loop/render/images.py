@@ -20,6 +20,16 @@ leaves a pixel uncovered, in whole or in part (at a pixel a fraction ``a``
 covered, Mitsuba's ``hdrfilm`` stores ``a S + (1 - a) B`` in RGB and ``a`` in
 alpha), so its mask is all ones and ``T`` is the render itself.
 
+Weights. Not every pixel of a photo's mask can be believed: each view's loss
+is the mean over all pixels of ``w |R - T|`` (or ``w (R - T)^2``), ``w`` the
+weights of :func:`~mi_loop.render.mask_trust.pixel_weights`: 0 on uncertain
+mask pixels off the mask's edge (soft masks, JPEG ringing), 0 on foreground
+within two pixels of the frame or of pixels an undistorted photo did not see
+(the subject continues there: a surface that leaves the frame is not pulled
+back in), ``View.valid`` elsewhere, 1 without it. A view whose weights are
+all 1 (binary or antialiased masks inside the frame: synthetic captures,
+rendered targets) is compared unweighted, exactly as before.
+
 Seeds. Every render of view ``k`` under the seed ``s`` of a call uses the
 sampler seed :func:`~mi_loop.render.captures.view_seed` ``(s, k)`` (the seed tree, one level down):
 :meth:`~ImageRenderer.render`, :meth:`~ImageRenderer.view_loss`,
@@ -34,6 +44,7 @@ from mi_loop.ad.control import ControlPoints
 from mi_loop.ad.threads import one_thread
 from mi_loop.errors import fail
 from mi_loop.render.captures import background, camera_scene, check_albedo, check_count, check_views, view_seed
+from mi_loop.render.mask_trust import pixel_weights
 from mi_loop.render.plugin import albedo_bsdf, create
 
 __all__ = ["INTEGRATORS", "LOSSES", "ImageRenderer"]
@@ -78,6 +89,8 @@ class ImageRenderer:
     views : list of mi_loop.io.capture.View
     targets : list of mi.TensorXf (h, w, 3)
         The views composited over the emitters' background (module docstring).
+    weights : list of mi.TensorXf (h, w, 3) or None
+        Per view, its pixels' weights in the loss (module docstring), None where all are 1.
     shape : mi.Mesh
         The ``loop_subdiv`` shape.
 
@@ -138,11 +151,13 @@ class ImageRenderer:
 
         if self._backgrounds is None and any((v.mask < 1).any() for v in self.views):
             self._backgrounds = background(self.cameras, self.emitters)
-        self.targets = []
+        self.targets, self.weights = [], []
         for k, view in enumerate(self.views):
             a = view.mask[..., None]
             T = view.rgb if (a == 1).all() else a * view.rgb + (1.0 - a) * self._backgrounds[k]
             self.targets.append(mi.TensorXf(np.ascontiguousarray(T, dtype=np.float32)))
+            w = pixel_weights(view.mask, view.valid)
+            self.weights.append(None if w is None else mi.TensorXf(np.repeat(w[..., None], 3, axis=2)))
 
     def set_photos(self, views) -> bool:
         """Take new targets from the same cameras (a sequence's next frame); False if the cameras differ.
@@ -211,12 +226,17 @@ class ImageRenderer:
     def view_loss(self, x, c, k: int, *, seed: int, spp: int | None = None):
         """Loss (L1 or L2) between the render of view ``k`` and its target; ``mi.Float (1)``, differentiable.
 
-        Arguments as in :meth:`render`.
+        The mean over all pixels and channels, each pixel weighted by
+        ``weights[k]`` where the view has weights (module docstring). Arguments
+        as in :meth:`render`.
         """
         import drjit as dr
 
         diff = self.render(x, c, k, seed=seed, spp=spp) - self.targets[int(k)]
-        return dr.mean((dr.abs(diff) if self.loss == "l1" else dr.square(diff)).array)
+        error = dr.abs(diff) if self.loss == "l1" else dr.square(diff)
+        if self.weights[int(k)] is not None:
+            error = error * self.weights[int(k)]
+        return dr.mean(error.array)
 
     def backward(self, x, c, view_ids, *, seed: int, weight: float = 1.0) -> list:
         """Accumulate the gradients of ``weight * mean_k loss_k`` into ``x`` and ``c``; return each ``loss_k``.

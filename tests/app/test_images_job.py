@@ -65,6 +65,26 @@ def test_fit_images_writes_a_coloured_control_mesh_report_and_pictures(capture, 
     assert imread(out / "loss.png").shape[0] > 100
 
 
+def test_fit_images_reads_the_photos_at_the_finest_stages_size(capture, tmp_path, monkeypatch):
+    """--res R goes to read_capture, which decodes straight to R: the finest stage is R, the coarser R / 2."""
+    from mi_loop.io import capture as capture_module
+
+    asked = []
+
+    def spy(path, **kwargs):
+        asked.append(kwargs)
+        return read_capture(path, **kwargs)
+
+    read_capture = capture_module.read_capture
+    monkeypatch.setattr(capture_module, "read_capture", spy)
+    out = tmp_path / "out"
+    assert main(["fit-images", str(capture), "-o", str(out), *FAST, "--res", "20", "--iterations", "2"]) == 0
+    assert asked == [{"resolution": 20}]
+    report = json.loads((out / "report.json").read_text())
+    assert [(s["width"], s["height"]) for s in report["stages"]] == [(10, 8), (20, 16)]
+    assert imread(out / "progress.png").shape[:2] == (3 * 16, 4 * 20)
+
+
 def test_fit_images_reads_the_lighting_file(capture, tmp_path, capsys):
     lights = tmp_path / "lights.xml"
     lights.write_text('<scene version="3.0.0"><emitter type="constant"><rgb name="radiance" value="0.8"/>'

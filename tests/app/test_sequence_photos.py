@@ -135,6 +135,12 @@ def test_a_capture_without_masks_is_refused(capture, tmp_path, capsys):
                     "channel or mask_path: the silhouettes come from them), got none in "
                     f"'{bad / '0000' / 'transforms.json'}' (every pixel of every photo is foreground)")
     assert not (tmp_path / "out").exists()
+    # undistorted, the photos have unseen pixels (mask 0 there): still no mask where they saw something
+    for t in range(len(RADII)):
+        path = bad / f"{t:04d}" / "transforms.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), "camera_model": "SIMPLE_RADIAL", "k1": -0.2}))
+    assert one_line_error(capsys, ["fit-sequence", str(depth), "--images", str(bad), "-o", str(tmp_path / "out"),
+                                   *FAST]) == line
 
 
 def test_cameras_that_do_not_see_the_frame_are_refused(capture, tmp_path, capsys):

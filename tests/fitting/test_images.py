@@ -6,10 +6,11 @@ import pytest
 
 from mi_loop import datasets
 from mi_loop.fitting.declarations import OptionError
-from mi_loop.fitting.hull import capture_bounds, visual_hull
+from mi_loop.fitting.hull import capture_bounds, in_mask, visual_hull
 from mi_loop.fitting.images import fit_images, stage_plan, start_mesh
 from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.io.emitters import DEFAULT_EMITTERS
+from mi_loop.io.views import Camera, View
 from mi_loop.metrics import two_sided
 from mi_loop.render.cameras import fibonacci_cameras
 from mi_loop.render.captures import render_views
@@ -69,6 +70,19 @@ def test_the_visual_hull_holds_the_subject_and_its_box_is_close(photos):
     assert np.linalg.norm(hi - lo) < 1.25                                       # 10 views: a tight box
     outward = np.einsum("ij,ij->i", N, H - 0.5 * (lo + hi)) > 0
     assert outward.mean() > 0.9                                                 # normals point out
+
+
+def test_in_mask_treats_the_unseen_pixels_of_an_undistorted_photo_as_outside_it():
+    """Pixels whose valid is below 0.5 are outside the frame: they neither carve nor count as seeing."""
+    camera = Camera(np.eye(4), 4.0, 4.0, 2.0, 2.0, 4, 4)
+    X = np.array([[x, 0.1, -1.0] for x in (-0.375, -0.125, 0.125, 0.375)])     # pixels (0..3, 1) of the image
+    valid = np.ones((4, 4))
+    valid[:, 0], valid[:, 1] = 0.0, 0.4
+    view = View(camera, np.zeros((4, 4, 3)), np.zeros((4, 4)), "v")
+    inside, fg = in_mask(view, X)
+    assert inside.tolist() == [True] * 4 and fg.tolist() == [False] * 4
+    inside, fg = in_mask(View(camera, view.rgb, view.mask, "v", valid), X)
+    assert inside.tolist() == [False, False, True, True] and fg.tolist() == [False, False]
 
 
 def test_the_stage_plan_halves_the_images_and_keeps_the_triangle_count():

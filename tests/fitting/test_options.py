@@ -85,6 +85,8 @@ def test_every_field_refuses_a_value_of_the_wrong_kind_with_its_rules_words(cls,
     (ImageFitOptions, "albedo_lr", float("nan"), "a finite number >= 0"),
     (ImageFitOptions, "lr_decay", 0.0, "a number in (0, 1]"),
     (ImageFitOptions, "tolerance", float("inf"), "a finite number >= 0"),
+    (ImageFitOptions, "holdout", 1, "0 (off) or an integer >= 2"),
+    (ImageFitOptions, "holdout", -3, "0 (off) or an integer >= 2"),
 ])
 def test_rejected_values_name_the_class_the_field_and_the_rule(cls, name, value, what):
     with pytest.raises(OptionError, match=exactly(f"{cls.__name__}(): expected {name} to be {what}, got {value}")):

@@ -76,7 +76,7 @@ def test_write_then_read_gives_cameras_exactly_and_images_to_8_bits(tmp_path):
     path = write_capture(tmp_path / "out", views)
     assert path == tmp_path / "out" / "transforms.json"
     assert sorted(p.name for p in (tmp_path / "out" / "images").iterdir()) == ["000.png", "001.png", "002.png"]
-    capture = read_capture(path)
+    capture = read_capture(path, undistort=False)          # as stored: view 1 keeps fx != fy
     assert capture.path == path and len(capture.views) == 3
     for k, (wrote, read) in enumerate(zip(views, capture.views)):
         assert read.camera == wrote.camera                 # every float exact
@@ -84,6 +84,10 @@ def test_write_then_read_gives_cameras_exactly_and_images_to_8_bits(tmp_path):
         assert read.rgb.dtype == np.float32 and read.mask.dtype == np.float32
         np.testing.assert_allclose(linear_to_srgb(read.rgb), linear_to_srgb(wrote.rgb), atol=0.5 / 255 + 1e-6)
         np.testing.assert_allclose(read.mask, wrote.mask, atol=0.5 / 255 + 1e-6)
+    square = read_capture(path).views                        # by default view 1 is resampled to square pixels
+    assert [square[k].camera for k in (0, 2)] == [views[k].camera for k in (0, 2)]
+    cam = square[1].camera
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (31.25, 31.25, 10.3 * 31.25 / 30.5, 9.1, 24, 16)
     meta = json.loads(path.read_text())
     assert "camera_angle_x" not in meta                      # the views' intrinsics differ
     assert set(meta["frames"][0]) == {"file_path", "fl_x", "fl_y", "cx", "cy", "w", "h", "transform_matrix"}
@@ -148,7 +152,7 @@ def test_camera_angle_x_equals_the_equivalent_fl_x(tmp_path):
     focal = transforms(tmp_path, [{"file_path": "a.png"}], fl_x=fx, fl_y=fx, cx=20, cy=15, w=40, h=30)
     assert read_capture(focal).views[0].camera == by_angle
     both = transforms(tmp_path, [{"file_path": "a.png"}], camera_angle_x=0.8, camera_angle_y=0.7)
-    assert read_capture(both).views[0].camera.fy == pytest.approx(15 / math.tan(0.35), rel=1e-15)
+    assert read_capture(both, undistort=False).views[0].camera.fy == pytest.approx(15 / math.tan(0.35), rel=1e-15)
     only_fl_x = transforms(tmp_path, [{"file_path": "a.png"}], fl_x=33.0)
     camera = read_capture(only_fl_x).views[0].camera
     assert (camera.fx, camera.fy, camera.cx, camera.cy) == (33.0, 33.0, 20.0, 15.0)
@@ -162,7 +166,7 @@ def test_frame_intrinsics_override_the_top_level(tmp_path):
         {"file_path": "tall.png", "fl_x": 60.0, "cx": 4.0, "w": 20, "h": 48},
         {"file_path": "wide.png", "fl_y": 51.0, "cy": 19.5},
     ], fl_x=50.0, cx=24.0, cy=10.0)
-    cams = [v.camera for v in read_capture(path).views]
+    cams = [v.camera for v in read_capture(path, undistort=False).views]
     assert [(c.fx, c.fy, c.cx, c.cy, c.width, c.height) for c in cams] == [
         (50.0, 50.0, 24.0, 10.0, 48, 20), (60.0, 60.0, 4.0, 10.0, 20, 48), (50.0, 51.0, 24.0, 19.5, 48, 20)]
 
@@ -346,14 +350,18 @@ def test_refuses_missing_unreadable_or_frameless_json(tmp_path):
     ({"file_path": "ok.png", "fl_x": "5"}, {}, "a focal length > 0 for frames[0].fl_x in '{json}', got '5'"),
     ({"file_path": "ok.png"}, {"camera_angle_x": 3.5},
      "an angle in (0, pi) radians for camera_angle_x (top level, for frames[0]) in '{json}', got 3.5"),
-    ({"file_path": "ok.png", "fl_x": 5.0, "k1": 0.01}, {},
-     "no lens distortion (0: mi_loop models pinholes; undistort the images first) for frames[0].k1 in '{json}', "
-     "got 0.01"),
-    ({"file_path": "ok.png", "fl_x": 5.0}, {"camera_model": "OPENCV_FISHEYE"},
-     "a pinhole model (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV) for camera_model "
-     "(top level, for frames[0]) in '{json}', got 'OPENCV_FISHEYE'"),
-    ({"file_path": "ok.png", "fl_x": 5.0, "is_fisheye": True}, {},
-     "a pinhole camera (false) for frames[0].is_fisheye in '{json}', got True"),
+    ({"file_path": "ok.png", "fl_x": 5.0}, {"camera_model": "EQUIRECTANGULAR"},
+     "a camera model mi_loop reads (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, "
+     "OPENCV_FISHEYE) for camera_model (top level, for frames[0]) in '{json}', got 'EQUIRECTANGULAR'"),
+    ({"file_path": "ok.png", "fl_x": 5.0, "camera_model": "OPENCV_FISHEYE", "p1": 0.01}, {},
+     "0 (camera_model OPENCV_FISHEYE has no p1) for frames[0].p1 in '{json}', got 0.01"),
+    ({"file_path": "ok.png", "fl_x": 5.0, "camera_model": "SIMPLE_RADIAL", "k2": -0.1}, {},
+     "0 (camera_model SIMPLE_RADIAL has no k2) for frames[0].k2 in '{json}', got -0.1"),
+    ({"file_path": "ok.png", "fl_x": 5.0, "k4": 0.01}, {},
+     "0 (camera_model OPENCV (the default) has no k4) for frames[0].k4 in '{json}', got 0.01"),
+    ({"file_path": "ok.png", "fl_x": 5.0, "is_fisheye": True, "camera_model": "OPENCV"}, {},
+     "false for camera_model OPENCV for frames[0].is_fisheye in '{json}', got True"),
+    ({"file_path": "ok.png", "fl_x": 5.0, "k1": "0.1"}, {}, "a finite number for frames[0].k1 in '{json}', got '0.1'"),
     ({"file_path": "clear.png", "fl_x": 5.0}, {},
      "a mask with some foreground for frames[0].file_path in '{json}', got an image whose alpha is zero "
      "everywhere (an empty mask)"),
