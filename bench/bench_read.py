@@ -28,8 +28,8 @@ NumPy, Pillow, OpenCV and Mitsuba's import). The figures are the median of
 Usage::
 
     cd <repository root>
-    PYTHONPATH=. nice -n 19 .venv/bin/python bench/bench_read.py              # ~2 min to write the copies
-    PYTHONPATH=. nice -n 19 .venv/bin/python bench/bench_read.py --old-subset 0 --runs 5
+    PYTHONPATH=. .venv/bin/python bench/bench_read.py              # ~2 min to write the copies
+    PYTHONPATH=. .venv/bin/python bench/bench_read.py --old-subset 0 --runs 5
 """
 from __future__ import annotations
 
