@@ -391,6 +391,19 @@ def _load_meta(path: Path) -> tuple[str, dict]:
     return fmt, meta
 
 
+def _capture_in(directory: Path, name: str):
+    """``directory / name``, the directory itself if it holds a capture of another format, or None."""
+    from mi_loop.io.camera_formats import detect
+
+    if (directory / name).is_file():
+        return directory / name
+    try:
+        detect(directory)
+    except ValueError:
+        return None
+    return directory
+
+
 def list_captures(inputs, name: str = "transforms.json", where: str = "list_captures") -> list:
     """The captures of a sequence, one per frame, sorted: ``transforms.json`` paths (not read yet).
 
@@ -398,8 +411,10 @@ def list_captures(inputs, name: str = "transforms.json", where: str = "list_capt
     ----------
     inputs : list of str or os.PathLike
         ``transforms.json`` files (any name ending in ``.json``); directories
-        holding one (``DIR/transforms.json``) or whose sub-directories do
-        (``DIR/0000/transforms.json`` ..., sorted by name); or quoted glob
+        holding one (``DIR/transforms.json``) or a capture of another format
+        (:func:`mi_loop.io.camera_formats.detect`: IDR / NeuS, LLFF, COLMAP),
+        or whose sub-directories do (``DIR/0000/transforms.json`` ...,
+        ``DIR/0000/cameras_sphere.npz`` ..., sorted by name); or quoted glob
         patterns (``'cap/*/transforms.json'``, sorted). The order given is kept
         between items.
     name : str
@@ -410,6 +425,8 @@ def list_captures(inputs, name: str = "transforms.json", where: str = "list_capt
     Returns
     -------
     list of pathlib.Path
+        ``transforms.json`` files, or the directories of captures in another
+        format (:func:`read_capture` takes either).
 
     Raises
     ------
@@ -430,12 +447,13 @@ def list_captures(inputs, name: str = "transforms.json", where: str = "list_capt
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            if (p / name).is_file():
-                out.append(p / name)
+            if _capture_in(p, name) is not None:
+                out.append(_capture_in(p, name))
                 continue
-            found = sorted(q / name for q in p.iterdir() if q.is_dir() and (q / name).is_file())
+            found = sorted(c for c in (_capture_in(q, name) for q in p.iterdir() if q.is_dir()) if c is not None)
             if not found:
-                fail(where, f"a directory holding {name} or sub-directories that do", f"none in '{p}'")
+                fail(where, f"a directory holding {name} or a capture of another format (IDR, LLFF, COLMAP), "
+                     "or sub-directories that do", f"none in '{p}'")
             out += found
         elif p.is_file():
             out.append(p)

@@ -414,3 +414,21 @@ def test_ethiopian_head_optical_axes_meet_within_the_near_far_bounds():
     # far is LLFF's 99.9th percentile of the depths of the points a view sees: a few views see only the side of
     # the head nearest to them, and the axes meet inside it, up to 7 % beyond their far bound
     assert ((near < depth) & (depth < 1.1 * far)).all(), np.c_[near, depth, far]
+
+
+def test_a_sequence_lists_and_reads_captures_of_any_format_one_per_frame(tmp_path):
+    """fit-sequence --images DIR: sub-directories holding IDR or LLFF captures count as frames, sorted, each
+    read by read_capture as it is; a directory with none is refused naming what it looked for."""
+    from mi_loop.io.capture import list_captures, read_capture
+
+    write_idr(tmp_path / "seq" / "0001")
+    write_llff(tmp_path / "seq" / "0000")
+    (tmp_path / "seq" / "notes").mkdir()
+    paths = list_captures([tmp_path / "seq"])
+    assert paths == [tmp_path / "seq" / "0000", tmp_path / "seq" / "0001"]
+    assert [read_capture(p).format for p in paths] == ["llff", "idr"]
+    assert list_captures([tmp_path / "seq" / "0001"]) == [tmp_path / "seq" / "0001"]
+    message = value_error(list_captures, [tmp_path / "seq" / "notes"], where="fit-sequence --images")
+    assert message == ("fit-sequence --images: expected a directory holding transforms.json or a capture of "
+                       "another format (IDR, LLFF, COLMAP), or sub-directories that do, got none in "
+                       f"'{tmp_path / 'seq' / 'notes'}'")
