@@ -470,3 +470,20 @@ def check_bounds(doc, read, i):
     a, values = doc["accessors"][i], read(i)
     np.testing.assert_array_equal(a["min"], values.min(axis=0))
     np.testing.assert_array_equal(a["max"], values.max(axis=0))
+
+
+def blob_capture(directory):
+    """Six renders of a smooth coloured blob, 40 x 32, written as a capture in ``directory``; its transforms.json."""
+    from mi_loop import datasets
+    from mi_loop.io.capture import write_capture
+    from mi_loop.io.emitters import DEFAULT_EMITTERS
+    from mi_loop.render.cameras import fibonacci_cameras
+    from mi_loop.render.captures import render_views
+    from mi_loop.subdiv.masks import limit_mesh
+
+    P, F, N = limit_mesh(*datasets.blob(), 2)
+    P = (P - P.mean(0)) / np.linalg.norm(P.max(0) - P.min(0))
+    cams = fibonacci_cameras(6, [0, 0, 0], 1.9, fov_x_deg=35, width=40, height=32)
+    views = render_views(P, F, cams, [dict(e) for e in DEFAULT_EMITTERS], normals=N,
+                         colors=np.clip(0.5 + P, 0.1, 0.8), spp=8)
+    return write_capture(directory, views)

@@ -102,8 +102,9 @@ def _evaluate(result, views, emitters, options, log):
     return out, shown
 
 
-def _holdout(result, views, held, emitters, options, log) -> dict:
-    """Render the held-out photos ``held`` (indices into ``views``) from the fit and score them (module docstring)."""
+def _holdout(result, views, held, emitters, options, log) -> tuple:
+    """Render the held-out photos ``held`` (indices into ``views``) from the fit and score them (module docstring):
+    ``(report section, photos, renders)``."""
     from mi_loop.fitting.holdout import masked_psnr, silhouette_iou
     from mi_loop.fitting.images import tessellation_level
     from mi_loop.io.srgb import linear_to_srgb
@@ -118,7 +119,7 @@ def _holdout(result, views, held, emitters, options, log) -> dict:
               for i, photo, render in zip(held, photos, renders)]
     section = {"k": options.holdout, "rule": "photos i with i % k == k - 1",
                "psnr": "sRGB in [0, 1], inside the photo's mask", "views": scores,
-               **_summary(scores, "iou", "iou"), **_summary(scores, "psnr_db", "psnr")}
+               **_summary(scores, "iou"), **_summary(scores, "psnr_db")}
     log.say(f"held out {len(held)} views: IoU median {section['iou_median']:.3f}, "
             f"PSNR median {section['psnr_median_db']:.2f} dB")
     for s in scores:                    # JSON has no NaN: null where a view had nothing to score
@@ -126,11 +127,13 @@ def _holdout(result, views, held, emitters, options, log) -> dict:
     return section, photos, renders
 
 
-def _summary(scores, key: str, name: str) -> dict:
-    """Mean and median of ``key`` over the views where it is finite (NaN: none is)."""
+def _summary(scores, key: str) -> dict:
+    """Mean and median of ``key`` over the views where it is finite (NaN: none is): ``iou_mean``,
+    ``psnr_mean_db`` (the unit suffix kept last)."""
     x = np.array([s[key] for s in scores], dtype=float)
     x = x[np.isfinite(x)]
-    unit = "_db" if key.endswith("_db") else ""
+    name, _, unit = key.partition("_")
+    unit = f"_{unit}" if unit else ""
     return {f"{name}_mean{unit}": float(x.mean()) if len(x) else float("nan"),
             f"{name}_median{unit}": float(np.median(x)) if len(x) else float("nan")}
 

@@ -267,15 +267,13 @@ def _hull_points(first, views, log):
     from mi_loop.fitting.hull import visual_hull
 
     P, N = first.P, first.N
-    H, NH, _ = visual_hull(views, resolution=HULL_RESOLUTION)
-    oriented = np.linalg.norm(NH, axis=1) > 0.5        # a flat patch of the occupancy has no gradient
-    H, NH = H[oriented], NH[oriented]
-    tree = cKDTree(P)
+    H, NH, _ = visual_hull(views, resolution=HULL_RESOLUTION)    # unit normals only (hull_points)
+    tree, hull = cKDTree(P), cKDTree(H)
     spacing = float(np.median(tree.query(P, k=2)[0][:, 1]))
     d, _ = tree.query(H)
-    voxel = float(np.median(cKDTree(H).query(H, k=2)[0][:, 1]))
+    voxel = float(np.median(hull.query(H, k=2)[0][:, 1]))
     far = d > max(3.0 * spacing, 2.0 * voxel)
-    _, nearest = cKDTree(H).query(P)
+    _, nearest = hull.query(P)
     N = np.where((np.sum(N * NH[nearest], axis=1) < 0)[:, None], -N, N)
     log.say(f"visual hull: {far.sum()} of its {len(H)} boundary points fill holes of the first frame's points")
     return np.concatenate([P, H[far]]), np.concatenate([N, NH[far]])

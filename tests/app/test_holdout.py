@@ -15,13 +15,8 @@ from matplotlib.image import imread
 
 from mi_loop.app.cli import main
 from mi_loop.fitting.holdout import masked_psnr, silhouette_iou, split_views
-from mi_loop.io.capture import write_capture
-from mi_loop.io.emitters import DEFAULT_EMITTERS
-from mi_loop.render.cameras import fibonacci_cameras
-from mi_loop.render.captures import render_views
-from mi_loop.subdiv.masks import limit_mesh
 
-from helpers import one_line_error
+from helpers import blob_capture, one_line_error
 
 FAST = ["--init", "sphere", "--iterations", "6", "--spp", "2", "--vertices", "170", "--refinements", "1", "--quiet"]
 
@@ -101,15 +96,7 @@ def test_score_shape_errors(call, message):
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    """Six renders of a smooth blob, 40x32 (as tests/app/test_images_job.py's capture)."""
-    from mi_loop import datasets
-
-    P, F, N = limit_mesh(*datasets.blob(), 2)
-    P = (P - P.mean(0)) / np.linalg.norm(P.max(0) - P.min(0))
-    cams = fibonacci_cameras(6, [0, 0, 0], 1.9, fov_x_deg=35, width=40, height=32)
-    views = render_views(P, F, cams, [dict(e) for e in DEFAULT_EMITTERS], normals=N,
-                         colors=np.clip(0.5 + P, 0.1, 0.8), spp=8)
-    return write_capture(tmp_path_factory.mktemp("capture"), views)
+    return blob_capture(tmp_path_factory.mktemp("capture"))
 
 
 @pytest.fixture(scope="module")
