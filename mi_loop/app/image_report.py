@@ -44,23 +44,26 @@ def image_loss_plot(history: list) -> np.ndarray:
 
 
 def progress_grid(evaluation: dict, shown) -> np.ndarray:
-    """Rows: the photos (over the lighting), the start's renders, the fit's renders; one column per view.
+    """Rows: the photos (over the lighting), the start's renders, the fit's renders, and (where the evaluation
+    has them) the fit's geometry in grey under a side light; one column per view.
 
     Parameters
     ----------
     evaluation : dict
-        ``targets`` (list of (h, w, 3) linear images) and ``start``/``end`` dicts with ``images``.
+        ``targets`` (list of (h, w, 3) linear images), ``start``/``end`` dicts with ``images``,
+        optionally ``relief`` (list of (h, w, 3) linear images).
     shown : list of int
         The views' indices (used for nothing but their count here).
 
     Returns
     -------
-    (3 h, len(shown) w, 3) float32 NumPy array
-        sRGB values in [0, 1].
+    (r h, len(shown) w, 3) float32 NumPy array
+        sRGB values in [0, 1]; ``r`` is 4 with ``relief``, else 3.
     """
     from mi_loop.io.srgb import linear_to_srgb
 
     rows = [evaluation["targets"], evaluation["start"]["images"], evaluation["end"]["images"]]
+    rows += [evaluation["relief"]] if "relief" in evaluation else []
     return np.concatenate([np.concatenate([linear_to_srgb(np.asarray(im)[..., :3]) for im in row], axis=1)
                            for row in rows], axis=0)
 

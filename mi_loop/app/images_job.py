@@ -17,8 +17,10 @@ Outputs (written together at the end, nothing half-written):
   the limit surface at the viewer's level coloured by its albedo, the control
   cage, the cameras' frusta, the photos next to renders of the fit from the
   same cameras, the per-view losses and the loss plot;
-- ``progress.png``: four photos (composited over the lighting) and the
-  renders of the start and of the fit from the same cameras;
+- ``progress.png``: four photos (composited over the lighting), the renders
+  of the start and of the fit from the same cameras, and the fit's geometry
+  alone: grey, lit from above the camera's right (relief in the geometry shows
+  there, relief painted into the albedo does not);
 - ``loss.png``: the image loss per iteration, stages marked;
 - ``holdout.png`` (with ``--holdout K``): the photos left out of the fit, renders
   of the fit from their cameras, and where the silhouettes agree.
@@ -92,14 +94,33 @@ def _evaluate(result, views, emitters, options, log):
     for name, (V, F, c) in {"start": (result.V0, result.F0, result.albedo0),
                             "end": (result.V, result.F, result.albedo)}.items():
         r = ImageRenderer(V, F, finest, emitters, albedo=c, level=tessellation_level(len(F), options.triangles),
-                          spp=options.spp, integrator=options.integrator)
+                          spp=options.spp, integrator=options.integrator, lighting=result.lighting)
         x, a = mi.Float(V.ravel().astype(np.float32)), mi.Float(c.ravel().astype(np.float32))
         out[name] = {"losses": r.losses(x, a, seed=99, spp=4 * options.spp),
                      "images": [np.asarray(r.render(x, a, k, seed=7, spp=4 * options.spp)) for k in shown]}
         out.setdefault("targets", [np.asarray(r.targets[k]) for k in shown])   # the same for both
+    out["relief"] = _relief(result, [finest[k].camera for k in shown], options)
     log.say(f"mean L1 over the {len(finest)} photos: {np.mean(out['start']['losses']):.4f} at the start, "
             f"{np.mean(out['end']['losses']):.4f} at the end")
     return out, shown
+
+
+def _relief(result, cameras, options) -> list:
+    """Grey renders of the fit's limit surface, each lit from above its camera's right: (h, w, 3) linear images."""
+    from mi_loop.fitting.images import tessellation_level
+    from mi_loop.render.captures import render_views
+
+    P, F, N, _ = _limit(result.V, result.F, result.albedo, tessellation_level(len(result.F), options.triangles))
+    backdrop = [{"type": "constant", "radiance": {"type": "rgb", "value": 0.05}}]
+    images = []
+    for camera in cameras:
+        right, up, back = (camera.c2w[:3, i] for i in range(3))
+        light = 0.8 * right + 0.5 * up + 0.35 * back                       # towards the light
+        grey = 0.06 + 0.7 * np.maximum(N @ (light / np.linalg.norm(light)), 0.0)
+        # the shading as the surface's emission (no shadows, no Monte Carlo noise)
+        images.append(render_views(P, F, [camera], backdrop, colors=np.repeat(grey[:, None], 3, axis=1), normals=N,
+                                   spp=4 * options.spp, seed=7, emission=True)[0].rgb)
+    return images
 
 
 def _holdout(result, views, held, emitters, options, log) -> tuple:
@@ -112,8 +133,10 @@ def _holdout(result, views, held, emitters, options, log) -> tuple:
 
     photos = _finest([views[i] for i in held], options)
     P, F, N, C = _limit(result.V, result.F, result.albedo, tessellation_level(len(result.F), options.triangles))
+    if result.lighting is not None:      # an unseen photo's gain is the fitted photos' geometric mean, 1
+        C = result.lighting.shade(C, N)
     renders = render_views(P, F, [v.camera for v in photos], emitters, colors=C, normals=N, spp=4 * options.spp,
-                           seed=7)
+                           seed=7, emission=result.lighting is not None)
     scores = [{"index": i, "name": photo.name, "iou": silhouette_iou(render.mask, photo.mask, photo.valid),
                "psnr_db": masked_psnr(linear_to_srgb(render.rgb), linear_to_srgb(photo.rgb), photo.mask, photo.valid)}
               for i, photo, render in zip(held, photos, renders)]
@@ -136,6 +159,16 @@ def _summary(scores, key: str) -> dict:
     unit = f"_{unit}" if unit else ""
     return {f"{name}_mean{unit}": float(x.mean()) if len(x) else float("nan"),
             f"{name}_median{unit}": float(np.median(x)) if len(x) else float("nan")}
+
+
+def _lighting(result, emitters) -> dict | str:
+    """The report's ``lighting``: the emitters given, or the estimate (shading coefficients, gains per photo)."""
+    backdrop = str(emitters) if emitters is not None else "constant environment, radiance 1"
+    if result.lighting is None:
+        return backdrop
+    est = result.lighting.numpy()
+    return {"model": "spherical harmonics, bands 0-2 (shading = sum_j s_j Y_j(n), radiance = gain * albedo * "
+                     "shading)", "coefficients": est["coefficients"], "gains": est["gains"], "backdrop": backdrop}
 
 
 def _limit(V, F, albedo, level: int = 3):
@@ -217,7 +250,7 @@ def run(capture: Path, output: Path, options: ImageFitOptions, *, init=None, emi
         grid, loss = progress_grid(evaluation, shown), image_loss_plot(result.history)
         timings["report"] = time.perf_counter() - t
         report = {"input": str(capture), "params": asdict(options), "init": str(init or options.init),
-                  "lighting": str(emitters) if emitters is not None else "constant environment, radiance 1",
+                  "lighting": _lighting(result, emitters),
                   "stages": result.stages, "parameters": {"control_points": result.V.size,
                                                           "albedo": result.albedo.size if options.albedo_lr > 0 else 0},
                   "views": [{"name": v.name, "loss_start": s, "loss_end": e} for v, s, e in

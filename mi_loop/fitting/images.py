@@ -32,8 +32,8 @@ from mi_loop.errors import fail
 from mi_loop.fitting.options import ImageFitOptions
 from mi_loop.fitting.rules import Seeds
 
-__all__ = ["HULL_RESOLUTION", "ImageFitResult", "fit_images", "refine", "stage_plan", "start_mesh",
-           "tessellation_level"]
+__all__ = ["HULL_RESOLUTION", "ImageFitResult", "fit_images", "refine", "stage_plan", "start_lighting",
+           "start_mesh", "tessellation_level"]
 
 #: Voxels along each side of the visual hull's grid (:func:`mi_loop.fitting.hull.carve`).
 HULL_RESOLUTION = 96
@@ -66,6 +66,9 @@ class ImageFitResult:
         points without a normal, left out); ``template``, the template's
         ``n_points``, ``dropped_normals``, ``vertices``, ``faces``, ``genus``,
         ``boundary_edges``. Empty for a given start mesh.
+    lighting : mi_loop.render.lighting.Lighting or None
+        The estimated lighting (``options.lighting = 'sh'``): its coefficients
+        and the gain of each of the views fitted, in their order.
     """
 
     V: np.ndarray
@@ -78,6 +81,7 @@ class ImageFitResult:
     stages: list = field(default_factory=list)
     bbox: tuple = ()
     start: dict = field(default_factory=dict)
+    lighting: object = None
 
 
 def refine(V, F, albedo=None):
@@ -99,11 +103,18 @@ def refine(V, F, albedo=None):
         Children of face ``f`` are rows ``4 f .. 4 f + 3`` (see
         :func:`mi_loop.subdivision_matrix`); the limit surface is unchanged.
     albedo_fine : (n + e, c) float64 NumPy array or None
+        Within the range of ``albedo`` per channel (the Loop weights are a
+        partition of unity: only rounding could leave it, and is clipped).
     """
     from mi_loop.subdiv.subdivision import subdivision_matrix
 
     S, F_fine = subdivision_matrix(F, len(V))
-    return S @ np.asarray(V, dtype=np.float64), F_fine, None if albedo is None else S @ np.asarray(albedo, float)
+    if albedo is None:
+        return S @ np.asarray(V, dtype=np.float64), F_fine, None
+    A = np.asarray(albedo, dtype=np.float64)
+    # each fine value is a convex combination of coarse ones: clipping to their range removes only rounding
+    # (an albedo of exactly 1 would otherwise come out as 1.0000000000000002 and be refused)
+    return S @ np.asarray(V, dtype=np.float64), F_fine, np.clip(S @ A, A.min(axis=0), A.max(axis=0))
 
 
 def start_mesh(views, options: ImageFitOptions):
@@ -246,7 +257,8 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
         V, F = V.astype(np.float64), F.astype(np.int64)
         bbox, how = (V.min(axis=0), V.max(axis=0)), {}
     c = np.full(V.shape, float(options.albedo))
-    result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox, start=how)
+    result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox, start=how,
+                            lighting=start_lighting(views, options))
     size = (max(v.camera.width for v in views), max(v.camera.height for v in views))
     plan = stage_plan(options, size, len(F))
     total = sum(p["iterations"] for p in plan)
@@ -258,7 +270,7 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
             V, F, c = refine(V, F, c)
         t_stage = time.perf_counter()
         V, c, info = _fit_stage(V, F, c, [v.resized(stage["scale"]) if stage["scale"] < 1 else v for v in views],
-                                emitters, options, stage, k, diag, seeds, done, total, progress)
+                                emitters, options, stage, k, diag, seeds, done, total, progress, result.lighting)
         h = info.pop("history")
         result.history += [{"stage": k, "loss": loss, "time": t_stage - t0 + s}
                            for loss, s in zip(h["image"], h["time"])]
@@ -269,8 +281,33 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     return result
 
 
-def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, total, progress):
-    """Optimise one control mesh at one resolution: ``V``, ``c`` and the stage's record (with its history)."""
+def start_lighting(views, options: ImageFitOptions):
+    """The estimated lighting's start (``options.lighting = 'sh'``, else None): uniform shading at the level
+    that makes the start albedo show the photos' mean colour inside their masks, every gain 1.
+
+    Parameters
+    ----------
+    views : sequence of mi_loop.io.capture.View
+    options : ImageFitOptions
+
+    Returns
+    -------
+    mi_loop.render.lighting.Lighting or None
+    """
+    if options.lighting != "sh":
+        return None
+    from mi_loop.render.lighting import N_COEFFS, Lighting, sh_basis
+
+    inside = [v.rgb[v.mask >= 1.0] for v in views]
+    colour = np.concatenate(inside).mean(axis=0) if sum(len(i) for i in inside) else np.full(3, 0.5)
+    S = np.zeros((N_COEFFS, 3))
+    S[0] = np.maximum(colour, 1e-3) / max(float(options.albedo), 1e-3) / sh_basis(np.array([[0.0, 0.0, 1.0]]))[0, 0]
+    return Lighting(len(views), S)
+
+
+def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, total, progress, lighting):
+    """Optimise one control mesh at one resolution: ``V``, ``c`` and the stage's record (with its history).
+    An estimated ``lighting`` is optimised with them and left holding its estimate."""
     import mitsuba as mi
 
     from mi_loop.ad.smoothing import SmoothParameterisation
@@ -282,7 +319,8 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
 
     n, n_it = len(V), stage["iterations"]
     renderer = ImageRenderer(V, F, views, emitters, albedo=c, level=stage["level"], spp=options.spp,
-                             integrator=options.integrator, deterministic=options.deterministic)
+                             integrator=options.integrator, deterministic=options.deterministic,
+                             lighting=lighting, highlights=options.highlights)
     smooth = SmoothParameterisation(F, n, options.lam)
     albedo = mi.Float(np.asarray(c, dtype=np.float32).ravel())
     params = {"x": Parameter(smooth.to_parameters(mi.Float(np.asarray(V, dtype=np.float32).ravel())),
@@ -290,10 +328,16 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
                              parameterisation=smooth)}
     if options.albedo_lr > 0:
         params["albedo"] = Parameter(albedo, Adam(), Constant(options.albedo_lr), bounds=(0.0, 1.0))
+    if lighting is not None and options.light_lr > 0:
+        params["light"] = Parameter(mi.Float(lighting.coefficients), Adam(), Constant(options.light_lr))
+        if options.exposure:
+            params["gain"] = Parameter(mi.Float(lighting.log_gain), Adam(), Constant(options.light_lr))
     parts = [terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
                              seeds=seeds.child(k))]
     if options.laplacian > 0:
         parts.insert(0, terms.CageLaplacian(F, n, options.laplacian / (n * diag ** 2)))
+    if options.albedo_smooth > 0 and "albedo" in params:
+        parts.insert(0, terms.CageLaplacian(F, n, options.albedo_smooth / n, of="albedo"))
     per_sweep = max(1, int(np.ceil(len(views) / options.views_per_iteration)))
     # stall: two sweeps of the photos whose mean loss falls by less than tolerance, after half the stage
     stall = Convergence(options.tolerance, patience=0, halvings=0, window=0, block=2 * per_sweep,
@@ -302,6 +346,9 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
                       convergence=stall, failure=Failure("fit_images", context=f"stage {k}, "),
                       progress=None if progress is None else (lambda i, _, loss: progress(done + i, total, k, loss)))
     c_fit = result.values["albedo"] if "albedo" in result.values else np.asarray(c, dtype=np.float64)
+    for name, attr in terms.ImageTerm.LIGHTING:
+        if name in result.values:
+            setattr(lighting, attr, mi.Float(result.values[name].astype(np.float32).ravel()))
     return result.values["x"], c_fit, {"iterations": result.iterations, "stalled": result.converged,
                                        "width": views[0].camera.width, "height": views[0].camera.height,
                                        "history": result.history}

@@ -39,13 +39,15 @@ from mi_loop.fitting.declarations import (
 from mi_loop.render.images import INTEGRATORS, LOSSES
 from mi_loop.render.scene import RIG_MODES
 
-__all__ = ["COVER", "IMAGE_INITS", "N_VERTICES", "SAMPLES", "SAMPLE_MODES", "FitOptions", "ImageFitOptions",
-           "SequenceOptions"]
+__all__ = ["COVER", "IMAGE_INITS", "LIGHTINGS", "N_VERTICES", "SAMPLES", "SAMPLE_MODES", "FitOptions",
+           "ImageFitOptions", "SequenceOptions"]
 
 #: Limit samples of the geometric terms: one per control vertex, a level-1 tessellation, random.
 SAMPLE_MODES = ("vertices", "level1", "random")
 #: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
 IMAGE_INITS = ("hull", "sphere")
+#: How :func:`~mi_loop.fitting.images.fit_images` lights the surface: the emitters it is given, or estimated.
+LIGHTINGS = ("given", "sh")
 
 #: Defaults shared by both loops (one place each).
 N_VERTICES = 1000     # control vertices of the automatic template
@@ -380,6 +382,21 @@ class ImageFitOptions:
         Seed of the view order and of the renders.
     deterministic : bool
         Bit-reproducible runs: reverse renders on one thread (slower).
+    lighting : {'given', 'sh'}
+        ``'given'``: the surface is lit by the emitters (``--emitters``);
+        ``'sh'``: by spherical-harmonic lighting estimated with the shape and
+        the albedo (:mod:`mi_loop.render.lighting`), the emitters only the backdrop.
+    exposure : bool
+        With ``lighting='sh'``: estimate an RGB gain per photo (exposure, white balance).
+    light_lr : float
+        Adam step of the lighting's coefficients and the photos' log-gains.
+    albedo_smooth : float
+        Weight ``w`` of the albedo's term ``w |L c|^2 / n`` (uniform Laplacian of
+        the cage): a smooth albedo leaves shading to the geometry; 0: off.
+    highlights : float
+        ``t > 0``: leave out of the loss the pixels inside the mask whose target
+        luminance exceeds ``t`` times the render's plus 0.02 (highlights the
+        diffuse model cannot show); 0: off.
     holdout : int
         ``K``: ``mi-loop fit-images`` leaves every ``K``-th photo (``i % K == K - 1``)
         out of the fit and scores the fit on them (:mod:`mi_loop.fitting.holdout`);
@@ -430,6 +447,20 @@ class ImageFitOptions:
                                                            "with --deterministic "))
     deterministic: bool = option(False, rule=FLAG,
                                  help="bit-reproducible fit: the reverse renders run on one thread (slower)")
+    lighting: str = option("given", rule=one_of(LIGHTINGS),
+                           help="light the surface with the --emitters (given, default) or estimate the lighting: "
+                                "spherical harmonics of bands 0-2 (sh)")
+    exposure: bool = option(True, rule=FLAG, flag="--no-exposure",
+                            help="with --lighting sh, no RGB gain per photo (exposure and white balance are "
+                                 "estimated by default)")
+    light_lr: float = option(0.01, rule=WEIGHT,
+                             help="Adam step of the estimated lighting and gains (default %(default)s)")
+    albedo_smooth: float = option(0.0, rule=WEIGHT, metavar="W",
+                                  help="weight of the albedo's Laplacian over the cage, so that shading is explained "
+                                       "by the geometry rather than painted into the albedo (default %(default)s: off)")
+    highlights: float = option(0.0, rule=WEIGHT, metavar="T",
+                               help="leave out pixels inside the mask brighter than T times the render (highlights); "
+                                    "default %(default)s: off")
     holdout: int = option(0, rule=HOLDOUT, metavar="K",
                           help="leave every K-th photo (the K-th, 2K-th, ...) out of the fit and score the fit on "
                                "them: silhouette IoU and PSNR inside the mask (default %(default)s: off)")

@@ -179,7 +179,7 @@ class Fold(Term):
 
 
 class CageLaplacian(Term):
-    """``weight |L x|^2``, ``L = I - D^-1 A``: each control point against the mean of its neighbours.
+    """``weight |L x|^2``, ``L = I - D^-1 A``: each control point (or its albedo) against the mean of its neighbours.
 
     Parameters
     ----------
@@ -189,11 +189,14 @@ class CageLaplacian(Term):
         Control points.
     weight : float
         Multiplies the sum over the control points.
+    of : {'x', 'albedo'}
+        The parameter smoothed: the control points, or the per-control-vertex
+        albedo (history key ``albedo_laplacian``).
     """
 
     name = "laplacian"
 
-    def __init__(self, F, n: int, weight: float):
+    def __init__(self, F, n: int, weight: float, of: str = "x"):
         import mitsuba as mi
 
         from mi_loop.ad.sparse import IndexMap, SegmentSum
@@ -207,11 +210,14 @@ class CageLaplacian(Term):
         self._inv_degree = upload_float(1.0 / np.maximum(degree, 1.0))
         self.weight, self.n = float(weight), int(n)
         self._mi = mi
+        self.of, self.wrt = of, (of,)
+        if of != "x":
+            self.name = f"{of}_laplacian"
 
     def energy(self, state):
         import drjit as dr
 
-        P = state.x.points
+        P = state.x.points if self.of == "x" else dr.unravel(self._mi.Point3f, state.values[self.of])
         mean = self._mi.Point3f(self._sum(self._J(P))) * self._inv_degree
         return self.weight * dr.sum(dr.squared_norm(P - mean))
 
@@ -228,7 +234,9 @@ class ImageTerm(Term):
     albedo : mi.Float (3n)
         The fixed per-control-vertex albedo, used when the loop has no
         ``'albedo'`` parameter (otherwise the parameter's value is rendered and
-        receives gradients).
+        receives gradients). Likewise the loop's parameters ``'light'`` and
+        ``'gain'``, where it has them, are the coefficients and log-gains of the
+        renderer's estimated lighting and receive their gradients.
     views_per_iteration : int
         Views rendered per evaluation, a seeded sweep through all of them.
     every : int
@@ -248,6 +256,8 @@ class ImageTerm(Term):
     kind = "render"
     name = "image"
     reuse = ("x",)
+    #: Loop parameters of an estimated lighting (:class:`~mi_loop.render.lighting.Lighting`) and its attributes.
+    LIGHTING = (("light", "coefficients"), ("gain", "log_gain"))
 
     def __init__(self, renderer, albedo, *, views_per_iteration: int, every: int = 1, to_world=None,
                  shaping=None, seeds):
@@ -280,6 +290,12 @@ class ImageTerm(Term):
         dr.enable_grad(x)
         if fit_albedo:
             dr.enable_grad(c)
+        lit = {}
+        for name, attr in self.LIGHTING:             # the estimated lighting's leaves, read by the renders
+            if name in state.values:
+                lit[name] = mi.Float(dr.detach(state.values[name]))
+                dr.enable_grad(lit[name])
+                setattr(self.renderer.lighting, attr, lit[name])
         losses = self.renderer.backward(x, c, self.views(), seed=self._seeds.integer(1, state.it))
         g = dr.grad(x)
         if self.to_world is not None:
@@ -289,4 +305,5 @@ class ImageTerm(Term):
         out = {"x": g}
         if fit_albedo:
             out["albedo"] = dr.grad(c)
+        out |= {name: dr.grad(v) for name, v in lit.items()}
         return out, float(np.mean(losses))

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from mi_loop.errors import fail
-from mi_loop.render.plugin import albedo_bsdf, plain_mesh
+from mi_loop.render.plugin import COLOR_ATTRIBUTE, albedo_bsdf, plain_mesh
 
 __all__ = ["background", "camera_scene", "render_targets", "render_views", "view_seed"]
 
@@ -158,7 +158,8 @@ def background(cameras, emitters, *, spp: int = 16, seed: int = 0) -> list:
             for k in range(len(cameras))]
 
 
-def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int = 64, seed: int = 0) -> list:
+def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int = 64, seed: int = 0,
+                 emission: bool = False) -> list:
     """Photograph a triangle mesh with calibrated cameras: synthetic captures for tests and benchmarks.
 
     Parameters
@@ -179,6 +180,10 @@ def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int
         Samples per pixel (``direct`` integrator).
     seed : int
         Seed of the first view's sampler (view ``k`` uses ``seed + k``).
+    emission : bool
+        The ``colors`` are the radiance the mesh sends towards every camera (a
+        lighting already applied, :mod:`mi_loop.render.lighting`): the mesh
+        emits them and reflects nothing; the emitters are only its backdrop.
 
     Returns
     -------
@@ -193,11 +198,17 @@ def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int
 
     from mi_loop.io.capture import View
 
-    if colors is None:
+    emitter = None
+    if emission:
+        if colors is None:
+            fail("render_views", "colors (the emitted radiance) with emission=True", "none")
+        bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}
+        emitter = mi.load_dict({"type": "area", "radiance": {"type": "mesh_attribute", "name": COLOR_ATTRIBUTE}})
+    elif colors is None:
         bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
     else:
         bsdf = albedo_bsdf()
-    mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(bsdf), colors=colors)
+    mesh = plain_mesh(V, F, normals=normals, bsdf=mi.load_dict(bsdf), colors=colors, emitter=emitter)
     return [View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
                  name=f"view_{k:03d}")
             for k, camera, image in _renders(mesh, cameras, emitters, spp, lambda k: seed + k, alpha=True)]

@@ -30,6 +30,15 @@ back in), ``View.valid`` elsewhere, 1 without it. A view whose weights are
 all 1 (binary or antialiased masks inside the frame: synthetic captures,
 rendered targets) is compared unweighted, exactly as before.
 
+Lighting. Given a :class:`~mi_loop.render.lighting.Lighting` (lighting the
+photos do not state: spherical-harmonic shading and a gain per photo), the
+surface is not lit by the emitters: its radiance towards view ``k`` is
+``g_k * albedo * s(n)`` at every tessellation vertex, shown through Mitsuba as
+the shape's emission at path depth 1 (``prb_projective``, ``max_depth`` 1), and
+the emitters are only the backdrop the masks composite over. The gradients of
+each view's loss then also reach the lighting's ``coefficients`` and ``log_gain``
+where they carry gradients.
+
 Seeds. Every render of view ``k`` under the seed ``s`` of a call uses the
 sampler seed :func:`~mi_loop.render.captures.view_seed` ``(s, k)`` (the seed tree, one level down):
 :meth:`~ImageRenderer.render`, :meth:`~ImageRenderer.view_loss`,
@@ -44,8 +53,9 @@ from mi_loop.ad.control import ControlPoints
 from mi_loop.ad.threads import one_thread
 from mi_loop.errors import fail
 from mi_loop.render.captures import background, camera_scene, check_albedo, check_count, check_views, view_seed
+from mi_loop.render.lighting import Lighting
 from mi_loop.render.mask_trust import pixel_weights
-from mi_loop.render.plugin import albedo_bsdf, create
+from mi_loop.render.plugin import RADIANCE_ATTRIBUTE, albedo_bsdf, create
 
 __all__ = ["INTEGRATORS", "LOSSES", "ImageRenderer"]
 
@@ -68,7 +78,7 @@ class ImageRenderer:
         The targets and their cameras, at the resolution to render (photos, or
         :func:`~mi_loop.render.captures.render_targets`).
     emitters : list of dict or mi.Emitter
-        The lighting.
+        The lighting; with ``lighting``, the backdrop only (module docstring).
     albedo : (n, 3) float NumPy array
         Per-control-vertex linear RGB in [0, 1], rendered when a call passes no ``c``.
     level : int
@@ -91,6 +101,7 @@ class ImageRenderer:
         The views composited over the emitters' background (module docstring).
     weights : list of mi.TensorXf (h, w, 3) or None
         Per view, its pixels' weights in the loss (module docstring), None where all are 1.
+    lighting : Lighting or None
     shape : mi.Mesh
         The ``loop_subdiv`` shape.
 
@@ -99,9 +110,10 @@ class ImageRenderer:
     ValueError
         ``V`` not of shape (n, 3), ``albedo`` not of shape (n, 3) or outside
         [0, 1], no views, an unknown integrator or loss, ``level < 0``, ``spp < 1``;
-        an invalid control mesh (:func:`mi_loop.render.plugin.create`).
+        an invalid control mesh (:func:`mi_loop.render.plugin.create`); a
+        lighting for another number of views.
     TypeError
-        A view that is not a :class:`mi_loop.io.View`.
+        A view that is not a :class:`mi_loop.io.View`; a lighting that is not a :class:`Lighting`.
 
     Notes
     -----
@@ -111,7 +123,8 @@ class ImageRenderer:
     """
 
     def __init__(self, V, F, views, emitters, *, albedo, level: int, spp: int,
-                 integrator: str = "direct_projective", loss: str = "l1", deterministic: bool = False):
+                 integrator: str = "direct_projective", loss: str = "l1", deterministic: bool = False,
+                 lighting: Lighting | None = None, highlights: float = 0.0):
         import mitsuba as mi
 
         func = "ImageRenderer"
@@ -124,14 +137,26 @@ class ImageRenderer:
             fail(func, f"integrator to be one of {INTEGRATORS}", repr(integrator))
         if loss not in LOSSES:
             fail(func, f"loss to be one of {LOSSES}", repr(loss))
+        if not np.isfinite(highlights) or highlights < 0:
+            fail(func, "highlights, a factor >= 0 (0: off)", highlights)
+        self.highlights = float(highlights)
         level, self.spp = check_count(level, func, "level", 0), check_count(spp, func, "spp", 1)
         self.loss, self.deterministic, self.emitters = loss, bool(deterministic), list(emitters)
-        self.shape = create(V, F, level=level, albedo=A, bsdf=mi.load_dict(albedo_bsdf()))
-        self.scene = camera_scene(self.shape, self.cameras, self.emitters,
-                                  integrator={"type": integrator, "sppi": 0}, spp=self.spp)
+        integrator = {"type": integrator, "sppi": 0}
+        self.lighting = lighting
+        if lighting is not None:
+            if not isinstance(lighting, Lighting):
+                raise TypeError(f"{func}(): expected lighting to be a mi_loop.render.lighting.Lighting, "
+                                f"got {type(lighting).__name__}")
+            if lighting.n_views != len(self.views):
+                fail(func, f"a lighting of {len(self.views)} views (one gain per view)", f"{lighting.n_views}")
+            integrator = {"type": "prb_projective", "max_depth": 1, "sppi": 0}
+        self.shape = create(V, F, level=level, albedo=A, bsdf=mi.load_dict(albedo_bsdf()),
+                            emission=lighting is not None)
+        self.scene = camera_scene(self.shape, self.cameras, self.emitters, integrator=integrator, spp=self.spp)
         self.params = mi.traverse(self.scene)
-        self.keys = {name: next(k for k in self.params.keys() if k.endswith(name))
-                     for name in ("control_points", "control_albedo")}
+        names = ("control_points", "control_albedo") + (() if lighting is None else (RADIANCE_ATTRIBUTE,))
+        self.keys = {name: next(k for k in self.params.keys() if k.endswith(name)) for name in names}
         self.params.keep(list(self.keys.values()))
         self._backgrounds = None
         self._composite()
@@ -151,13 +176,15 @@ class ImageRenderer:
 
         if self._backgrounds is None and any((v.mask < 1).any() for v in self.views):
             self._backgrounds = background(self.cameras, self.emitters)
-        self.targets, self.weights = [], []
+        self.targets, self.weights, self._inside = [], [], []
         for k, view in enumerate(self.views):
             a = view.mask[..., None]
             T = view.rgb if (a == 1).all() else a * view.rgb + (1.0 - a) * self._backgrounds[k]
             self.targets.append(mi.TensorXf(np.ascontiguousarray(T, dtype=np.float32)))
             w = pixel_weights(view.mask, view.valid)
             self.weights.append(None if w is None else mi.TensorXf(np.repeat(w[..., None], 3, axis=2)))
+            if self.highlights > 0:
+                self._inside.append(mi.Bool(np.repeat(view.mask[..., None] >= 1.0, 3, axis=2).ravel()))
 
     def set_photos(self, views) -> bool:
         """Take new targets from the same cameras (a sequence's next frame); False if the cameras differ.
@@ -178,12 +205,18 @@ class ImageRenderer:
         self._composite()
         return True
 
-    def _set(self, x, c) -> None:
+    def _set(self, x, c, k: int) -> None:
+        import drjit as dr
+
         for name, value in (("control_points", x), ("control_albedo", c)):
             if value is not None:        # marked dirty: the same variable again must rebuild its graph
                 self.params[self.keys[name]] = value.flat if isinstance(value, ControlPoints) else value
                 self.params.set_dirty(self.keys[name])
         self.params.update()
+        if self.lighting is not None:    # view k's radiance, from the limit albedo and normals just computed
+            L = self.lighting.radiance(self.shape.limit_albedo, self.shape.limit_normals, k)
+            self.params[self.keys[RADIANCE_ATTRIBUTE]] = dr.ravel(L)
+            self.params.update()
 
     def _check_view(self, k, func: str) -> int:
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < self.n_views:
@@ -220,23 +253,29 @@ class ImageRenderer:
 
         k = self._check_view(k, "ImageRenderer.render")
         spp = self.spp if spp is None else check_count(spp, "ImageRenderer.render", "spp", 1)
-        self._set(x, c)
+        self._set(x, c, k)
         return mi.render(self.scene, self.params, spp=spp, seed=view_seed(seed, k), sensor=k)
 
     def view_loss(self, x, c, k: int, *, seed: int, spp: int | None = None):
         """Loss (L1 or L2) between the render of view ``k`` and its target; ``mi.Float (1)``, differentiable.
 
         The mean over all pixels and channels, each pixel weighted by
-        ``weights[k]`` where the view has weights (module docstring). Arguments
-        as in :meth:`render`.
+        ``weights[k]`` where the view has weights (module docstring), without
+        the highlights where the renderer leaves them out. Arguments as in
+        :meth:`render`.
         """
         import drjit as dr
 
-        diff = self.render(x, c, k, seed=seed, spp=spp) - self.targets[int(k)]
+        R, T = self.render(x, c, k, seed=seed, spp=spp), self.targets[int(k)]
+        diff = R - T
         error = dr.abs(diff) if self.loss == "l1" else dr.square(diff)
         if self.weights[int(k)] is not None:
             error = error * self.weights[int(k)]
-        return dr.mean(error.array)
+        error = error.array
+        if self.highlights > 0:
+            bright = self._inside[int(k)] & (T.array > self.highlights * dr.detach(R.array) + 0.02)
+            error = dr.select(bright, 0.0, error)
+        return dr.mean(error)
 
     def backward(self, x, c, view_ids, *, seed: int, weight: float = 1.0) -> list:
         """Accumulate the gradients of ``weight * mean_k loss_k`` into ``x`` and ``c``; return each ``loss_k``.

@@ -51,8 +51,8 @@ import re
 
 import numpy as np
 
-__all__ = ["COLOR_ATTRIBUTE", "PLUGIN_NAME", "albedo_bsdf", "create", "mesh_arrays", "parse_corner_text",
-           "parse_crease_text", "plain_mesh", "register"]
+__all__ = ["COLOR_ATTRIBUTE", "PLUGIN_NAME", "RADIANCE_ATTRIBUTE", "albedo_bsdf", "create", "mesh_arrays",
+           "parse_corner_text", "parse_crease_text", "plain_mesh", "register"]
 
 #: Name of the plugin in scene dictionaries and XML files.
 PLUGIN_NAME = "loop_subdiv"
@@ -146,6 +146,8 @@ def parse_corner_text(text: str):
 _POSITIONS, _NORMALS, _FACES = "vertex_positions", "vertex_normals", "faces"
 #: The mesh attribute holding per-vertex colours (read by a ``mesh_attribute`` texture).
 COLOR_ATTRIBUTE = "vertex_color"
+#: Mesh attribute of the emitted radiance of a shape built with ``radiance=`` (:func:`create`).
+RADIANCE_ATTRIBUTE = "vertex_radiance"
 
 
 def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -235,9 +237,12 @@ def _shape_class(variant: str):
         albedo : (n, 3) float array, optional
             Per-control-vertex linear RGB given directly (else the control
             mesh file's vertex colours, if it has any).
+        emission : bool, optional
+            Add the mesh attribute :data:`RADIANCE_ATTRIBUTE` (zeros), the
+            radiance of an area emitter set by the caller; needs ``albedo``.
         """
 
-        def __init__(self, props, control_mesh=None, model=None, albedo=None):
+        def __init__(self, props, control_mesh=None, model=None, albedo=None, emission=False):
             level = props.get("level", 3)
             if not isinstance(level, int) or level < 0:
                 raise ValueError(f"loop_subdiv: expected an integer level >= 0, got {level!r}")
@@ -276,11 +281,15 @@ def _shape_class(variant: str):
             self._n = len(V)
             self._operator = LimitOperator(F, len(V), face_ids, uv, **model)
             self._x = mi.Float(V.astype(np.float32).ravel())
-            self._c = None
+            self._c = self._field = self._normals = None
+            if emission and albedo is None:
+                raise ValueError("loop_subdiv: an emitted radiance needs a per-control-vertex albedo")
             self._update_geometry(faces=mi.UInt32(np.asarray(F_tess, dtype=np.uint32).ravel()))
             if albedo is not None:
                 self._c = mi.Float(albedo.ravel())
                 self.add_attribute(COLOR_ATTRIBUTE, 3, [0.0] * (3 * len(uv)))
+                if emission:
+                    self.add_attribute(RADIANCE_ATTRIBUTE, 3, [0.0] * (3 * len(uv)))
                 self._update_colors()
 
         @property
@@ -298,15 +307,29 @@ def _shape_class(variant: str):
                 raise ValueError(f"loop_subdiv: control_points must hold 3 * {self._n} values, "
                                  f"got {dr.width(self._x)}")
             P, N = self._operator.positions_normals(self._x)
+            self._normals = N
             _write_mesh_buffers(self, dr.ravel(P), dr.ravel(N), faces)
 
         def _update_colors(self) -> None:
             if dr.width(self._c) != 3 * self._n:
                 raise ValueError(f"loop_subdiv: control_albedo must hold 3 * {self._n} values, "
                                  f"got {dr.width(self._c)}")
+            self._field = self._operator.positions(self._c)
             params = mi.traverse(self)
-            params[COLOR_ATTRIBUTE] = dr.ravel(self._operator.positions(self._c))
+            params[COLOR_ATTRIBUTE] = dr.ravel(self._field)
             params.update()
+
+        @property
+        def limit_normals(self):
+            """Unit limit normals at the tessellation's vertices (Dr.Jit 3-vector, with the control points'
+            gradients), as last computed."""
+            return self._normals
+
+        @property
+        def limit_albedo(self):
+            """The limit of the albedo field at the tessellation's vertices (Dr.Jit 3-vector, with the albedo's
+            gradients), as last computed; None without an albedo."""
+            return self._field
 
         @property
         def has_albedo(self) -> bool:
@@ -372,7 +395,7 @@ def _current_class(caller: str):
 
 
 def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None, *, corners=None,
-           boundary: str = "edge_and_corner", crease_method: str = "uniform"):
+           boundary: str = "edge_and_corner", crease_method: str = "uniform", emission: bool = False):
     """Build a ``loop_subdiv`` shape from control-mesh arrays (no file needed).
 
     Parameters
@@ -393,6 +416,12 @@ def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None, *, corner
     albedo : (n, 3) float NumPy array, optional
         Per-control-vertex linear RGB, exposed as ``control_albedo`` and
         carried to the mesh attribute :data:`COLOR_ATTRIBUTE`.
+    emission : bool, optional
+        Make the shape an area emitter whose radiance is the mesh attribute
+        :data:`RADIANCE_ATTRIBUTE` (zeros until the caller sets it through
+        ``mi.traverse``, e.g. from ``shape.limit_albedo`` and
+        ``shape.limit_normals``); needs ``albedo``. Rendered at path depth 1,
+        the shape then shows exactly this radiance (:mod:`mi_loop.render.lighting`).
 
     Returns
     -------
@@ -415,8 +444,11 @@ def create(V, F, level: int = 3, creases=None, bsdf=None, albedo=None, *, corner
         bsdf = mi.load_dict(albedo_bsdf())
     if bsdf is not None:
         props["bsdf"] = bsdf
+    if emission:
+        props["emitter"] = mi.load_dict({"type": "area",
+                                         "radiance": {"type": "mesh_attribute", "name": RADIANCE_ATTRIBUTE}})
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
-    return cls(props, control_mesh=(V, F), model=model, albedo=albedo)
+    return cls(props, control_mesh=(V, F), model=model, albedo=albedo, emission=emission)
 
 
 def albedo_bsdf() -> dict:
@@ -444,7 +476,7 @@ def _check_albedo(albedo, n: int):
     return A
 
 
-def plain_mesh(V, F, normals=None, bsdf=None, colors=None):
+def plain_mesh(V, F, normals=None, bsdf=None, colors=None, emitter=None):
     """Build an ordinary Mitsuba triangle mesh from arrays (e.g. a target to compare with).
 
     Parameters
@@ -459,6 +491,8 @@ def plain_mesh(V, F, normals=None, bsdf=None, colors=None):
         Surface material.
     colors : (k, 3) float NumPy array, optional
         Per-vertex linear RGB, as the attribute :data:`COLOR_ATTRIBUTE` (see :func:`albedo_bsdf`).
+    emitter : mi.Emitter, optional
+        Area emitter of the mesh (its radiance may be the attribute ``colors``).
 
     Returns
     -------
@@ -471,6 +505,8 @@ def plain_mesh(V, F, normals=None, bsdf=None, colors=None):
     props = mi.Properties()
     if bsdf is not None:
         props["bsdf"] = bsdf
+    if emitter is not None:
+        props["emitter"] = emitter
     mesh = mi.Mesh("plain", len(V), len(F), props, has_vertex_normals=normals is not None)
     params = mi.traverse(mesh)
     params[_POSITIONS] = mi.Float(V.ravel())

@@ -50,7 +50,9 @@ def test_fit_images_writes_a_coloured_control_mesh_report_and_pictures(capture, 
     assert report["parameters"] == {"control_points": 3 * 162, "albedo": 3 * 162}
     assert report["params"]["iterations"] == 6 and report["lighting"].startswith("constant")
     grid = imread(out / "progress.png")
-    assert grid.shape[:2] == (3 * 32, 4 * 40)             # target, start, fit rows; four views
+    assert grid.shape[:2] == (4 * 32, 4 * 40)             # target, start, fit, grey geometry rows; four views
+    grey = grid[3 * 32:, :, :3]
+    np.testing.assert_allclose(grey[..., 0], grey[..., 2], atol=2 / 255)   # grey: the albedo is not in it
     assert imread(out / "loss.png").shape[0] > 100
 
 
@@ -71,7 +73,7 @@ def test_fit_images_reads_the_photos_at_the_finest_stages_size(capture, tmp_path
     assert asked == [{"resolution": 20}]
     report = json.loads((out / "report.json").read_text())
     assert [(s["width"], s["height"]) for s in report["stages"]] == [(10, 8), (20, 16)]
-    assert imread(out / "progress.png").shape[:2] == (3 * 16, 4 * 20)
+    assert imread(out / "progress.png").shape[:2] == (4 * 16, 4 * 20)
 
 
 def test_fit_images_reads_the_lighting_file(capture, tmp_path, capsys):
@@ -83,7 +85,24 @@ def test_fit_images_reads_the_lighting_file(capture, tmp_path, capsys):
     assert json.loads((out / "report.json").read_text())["lighting"] == str(lights)
 
 
+def test_fit_images_estimates_the_lighting_and_a_gain_per_photo(capture, tmp_path):
+    """--lighting sh: report.json holds the nine shading coefficients per channel and one RGB gain per photo
+    (their geometric mean 1); the evaluation renders with them (the fit's loss below the start's)."""
+    out = tmp_path / "out"
+    assert main(["fit-images", str(capture), "-o", str(out), *FAST, "--lighting", "sh", "--highlights", "1.5"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    lighting = report["lighting"]
+    assert lighting["model"].startswith("spherical harmonics") and lighting["backdrop"].startswith("constant")
+    assert np.shape(lighting["coefficients"]) == (9, 3) and np.shape(lighting["gains"]) == (6, 3)
+    np.testing.assert_allclose(np.exp(np.log(lighting["gains"]).mean(axis=0)), 1.0, rtol=1e-5)
+    assert np.ptp(np.array(lighting["gains"])) > 0                  # the gains moved from 1
+    assert report["params"]["lighting"] == "sh" and report["params"]["highlights"] == 1.5
+    losses = [(v["loss_start"], v["loss_end"]) for v in report["views"]]
+    assert np.mean([e for _, e in losses]) < np.mean([s for s, _ in losses])
+
+
 @pytest.mark.parametrize("extra, message", [
+    (["--highlights", "-1"], "fit-images --highlights: expected a finite number >= 0, got -1.0"),
     (["--lr", "-1"], "fit-images --lr: expected a finite number > 0, got -1.0"),
     (["--refinements", "9"], "fit-images --refinements: expected an integer in 0..4, got 9"),
     (["--init", "nosuch.ply"], "fit-images --init: expected sphere, hull or an existing control mesh file, "
@@ -92,6 +111,15 @@ def test_fit_images_reads_the_lighting_file(capture, tmp_path, capsys):
 def test_bad_options_are_refused_before_reading(extra, message, tmp_path, capsys):
     line = one_line_error(capsys, ["fit-images", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o"), *extra])
     assert line == f"mi-loop: error: {message}"
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_unknown_lighting_model_is_refused_by_the_parser(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit-images", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o"), "--lighting", "envmap"])
+    assert exit_info.value.code == 2
+    assert ("mi-loop fit-images: error: argument --lighting: invalid choice: 'envmap' (choose from 'given', 'sh')"
+            in capsys.readouterr().err.splitlines())
     assert not (tmp_path / "o").exists()
 
 

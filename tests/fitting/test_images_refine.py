@@ -42,3 +42,30 @@ def test_the_refined_limit_surface_is_the_same_surface(V, F):
     assert np.abs(W_fine @ V_fine - W_coarse @ V).max() < 1e-12 * diag
     A = np.asarray(A_fine)
     assert np.abs(W_fine @ A - W_coarse @ np.random.default_rng(1).uniform(size=V.shape)).max() < 1e-12
+
+
+def irregular_sphere():
+    """The convex hull of 300 random unit vectors, faces outward: valences 3 to 9, whose Loop weights sum to
+    1 + 4e-16 at about a third of the new vertices."""
+    from scipy.spatial import ConvexHull
+
+    V = np.random.default_rng(0).normal(size=(300, 3))
+    V /= np.linalg.norm(V, axis=1, keepdims=True)
+    F = ConvexHull(V).simplices
+    inward = np.einsum("ij,ij->i", np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), V[F].mean(1)) < 0
+    F[inward] = F[inward][:, ::-1]
+    return V, F
+
+
+@pytest.mark.parametrize("V, F", [*meshes(), pytest.param(*irregular_sphere(), id="irregular-sphere")])
+def test_a_refined_albedo_stays_in_the_range_of_the_coarse_one(V, F):
+    """An albedo saturated at exactly 0 or 1 stays there (sums of weights that round to 1 + 4e-16 are clipped),
+    so a fit whose albedo reached 1 before a refinement is not refused after it."""
+    A = np.ones(V.shape)
+    A[::3] = 0.0
+    A[1::3, 1] = 0.25
+    _, _, A_fine = refine(V, F, albedo=A)
+    assert A_fine.min() >= 0.0 and A_fine.max() <= 1.0
+    assert (A_fine.max(axis=0) <= A.max(axis=0)).all() and (A_fine.min(axis=0) >= A.min(axis=0)).all()
+    ones = refine(V, F, albedo=np.ones(V.shape))[2]
+    np.testing.assert_array_equal(ones, 1.0)
