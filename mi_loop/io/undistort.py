@@ -16,6 +16,7 @@ and its maps hold ``x - 0.5, y - 0.5``. NumPy and OpenCV only.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -106,9 +107,9 @@ class Lens:
         return float(r[bad[0]]) if bad.size else math.inf
 
 
-def _intrinsics(camera: Camera) -> np.ndarray:
-    """OpenCV's camera matrix of ``camera`` (principal point in its integer-centre convention)."""
-    return np.array([[camera.fx, 0.0, camera.cx - 0.5], [0.0, camera.fy, camera.cy - 0.5], [0.0, 0.0, 1.0]])
+def _intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """OpenCV's camera matrix of a camera's intrinsics (principal point in its integer-centre convention)."""
+    return np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
 
 
 def _extent(camera: Camera, lens: Lens) -> tuple[float, float, float, float]:
@@ -120,7 +121,7 @@ def _extent(camera: Camera, lens: Lens) -> tuple[float, float, float, float]:
     edges = [np.stack([t * w, 0 * t], 1), np.stack([t * w, h + 0 * t], 1),
              np.stack([0 * t, t * h], 1), np.stack([w + 0 * t, t * h], 1)]
     border = (np.concatenate(edges) - 0.5).reshape(-1, 1, 2)
-    K = _intrinsics(camera)
+    K = _intrinsics(camera.fx, camera.fy, camera.cx, camera.cy)
     if lens.model == "fisheye":
         xy = cv2.fisheye.undistortPoints(border, K, np.array(lens.coefficients), criteria=_CRITERIA)
     else:
@@ -295,28 +296,43 @@ def undistort(image: np.ndarray, camera: Camera, lens: Lens, target: Camera) -> 
     if image.shape[:2] != (camera.height, camera.width):
         fail("undistort", f"an image of the camera's size {camera.width} x {camera.height}",
              f"{image.shape[1]} x {image.shape[0]}")
-    h, w = image.shape[:2]
-    f = target.fx
-    m = max(1, math.ceil(max(camera.fx, camera.fy) / f - 1e-9))
-    P = np.array([[f * m, 0.0, target.cx * m - 0.5], [0.0, f * m, target.cy * m - 0.5], [0.0, 0.0, 1.0]])
-    size = (target.width * m, target.height * m)
-    K, D = _intrinsics(camera), np.array(lens.coefficients)
-    if lens.model == "fisheye":
-        mx, my = cv2.fisheye.initUndistortRectifyMap(K, D, np.eye(3), P, size, cv2.CV_32FC1)
-    else:
-        mx, my = cv2.initUndistortRectifyMap(K, D, np.eye(3), P, size, cv2.CV_32FC1)
-    seen = (mx >= -0.5) & (mx <= w - 0.5) & (my >= -0.5) & (my <= h - 0.5)
-    x = ((np.arange(size[0], dtype=np.float32) + 0.5) / m - np.float32(target.cx)) / np.float32(f)
-    y = ((np.arange(size[1], dtype=np.float32) + 0.5) / m - np.float32(target.cy)) / np.float32(f)
-    fold = lens.fold_radius(float(np.hypot(np.abs(x).max(), np.abs(y).max())))
-    if math.isfinite(fold):
-        seen &= x[None, :] ** 2 + y[:, None] ** 2 < fold**2
+    mx, my, seen, m = _maps(*(float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy)), camera.width,
+                            camera.height, lens, float(target.fx), float(target.cx), float(target.cy), target.width,
+                            target.height)
     out = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), mx, my, cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE).reshape(size[1], size[0], -1)
-    del mx, my
+                    borderMode=cv2.BORDER_REPLICATE).reshape(seen.shape[0], seen.shape[1], -1)
     out *= seen[..., None]
     c = out.shape[2]
     out = out.reshape(target.height, m, target.width, m, c).mean(axis=(1, 3), dtype=np.float32)
     share = seen.reshape(target.height, m, target.width, m).mean(axis=(1, 3), dtype=np.float32)
     np.divide(out, share[..., None], out=out, where=share[..., None] > 0)
     return out, share
+
+
+@functools.lru_cache(maxsize=2)
+def _maps(fx, fy, cx, cy, width, height, lens, f, tcx, tcy, twidth, theight):
+    """OpenCV's remap tables of :func:`undistort` and the pixels they saw, once per camera: a capture's photos
+    usually share one (COLMAP, nerfstudio), and building the tables costs more than the remap.
+
+    Returns ``(mx, my, seen, m)``: float32 (H m, W m) source coordinates, the bool mask of those inside the
+    photo and before the model folds, and the sub-pixels per target pixel ``m``. Read-only.
+    """
+    import cv2
+
+    m = max(1, math.ceil(max(fx, fy) / f - 1e-9))
+    P = np.array([[f * m, 0.0, tcx * m - 0.5], [0.0, f * m, tcy * m - 0.5], [0.0, 0.0, 1.0]])
+    size = (twidth * m, theight * m)
+    K, D = _intrinsics(fx, fy, cx, cy), np.array(lens.coefficients)
+    if lens.model == "fisheye":
+        mx, my = cv2.fisheye.initUndistortRectifyMap(K, D, np.eye(3), P, size, cv2.CV_32FC1)
+    else:
+        mx, my = cv2.initUndistortRectifyMap(K, D, np.eye(3), P, size, cv2.CV_32FC1)
+    seen = (mx >= -0.5) & (mx <= width - 0.5) & (my >= -0.5) & (my <= height - 0.5)
+    x = ((np.arange(size[0], dtype=np.float32) + 0.5) / m - np.float32(tcx)) / np.float32(f)
+    y = ((np.arange(size[1], dtype=np.float32) + 0.5) / m - np.float32(tcy)) / np.float32(f)
+    fold = lens.fold_radius(float(np.hypot(np.abs(x).max(), np.abs(y).max())))
+    if math.isfinite(fold):
+        seen &= x[None, :] ** 2 + y[:, None] ** 2 < fold**2
+    for a in (mx, my, seen):
+        a.flags.writeable = False
+    return mx, my, seen, m

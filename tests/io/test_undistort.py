@@ -290,3 +290,25 @@ def test_lens_and_resampling_functions_refuse_bad_input():
             (lambda: read_pixels("any.png", 0), "read_pixels(): expected an integer reduction >= 1, got 0")]:
         with pytest.raises(ValueError, match=exactly(message)):
             make()
+
+
+def test_photos_of_one_camera_share_the_remap_tables():
+    """Two photos through the same camera and lens build OpenCV's tables once (a capture's photos usually share
+    one camera); another lens builds its own; the results do not depend on the cache."""
+    from mi_loop.io import undistort as module
+
+    camera = Camera(C2W, FX, FY, CX, CY, W, H)
+    lens, other = Lens("opencv", (-0.25, 0.08, 0.002, -0.003)), Lens("opencv", (0.1, 0.0, 0.0, 0.0))
+    target = scale_camera(ideal_camera(camera, lens), 0.4)
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(size=(H, W, 3)), rng.uniform(size=(H, W, 3))
+    module._maps.cache_clear()
+    first = module.undistort(a, camera, lens, target)
+    module.undistort(b, camera, lens, target)
+    assert module._maps.cache_info().misses == 1 and module._maps.cache_info().hits == 1
+    module.undistort(a, camera, other, scale_camera(ideal_camera(camera, other), 0.4))
+    assert module._maps.cache_info().misses == 2
+    module._maps.cache_clear()
+    again = module.undistort(a, camera, lens, target)
+    np.testing.assert_array_equal(first[0], again[0])
+    np.testing.assert_array_equal(first[1], again[1])
