@@ -107,7 +107,7 @@ class FrameFitter:
         from mi_loop.subdiv.masks import vertex_samples
 
         o, n = run.options, len(run.x)
-        self.run, self.photo, self.albedo_opt = run, None, None
+        self.run, self.photo, self.albedo_opt, self.saved_lighting = run, None, None, None
         photos = bool(run.sources.captures)
         if photos and o.image:
             self._albedo(saved)
@@ -140,6 +140,8 @@ class FrameFitter:
             run.albedo = saved["albedo"]
             state = {k: saved[f"albedo_{k}"] for k in ("t", "m", "v") if f"albedo_{k}" in saved}
             self.albedo_opt.load_state_dict(state)
+        if "light_coefficients" in saved:      # the estimated lighting, for the first renderer after a resume
+            self.saved_lighting = (saved["light_coefficients"], saved["light_log_gain"])
 
     def _images(self, t: int, frame):
         """Frame ``t``'s :class:`~mi_loop.fitting.sequence.FrameImages`: its photos, renders of its mesh, or None."""
@@ -152,14 +154,36 @@ class FrameFitter:
             views = read_views(run.sources.captures[t], t, frame)
             if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
                 self.photo = ImageRenderer(run.norm.inverse(run.x), run.F, views, run.lights, albedo=run.albedo,
-                                           level=o.level, spp=o.spp, deterministic=o.deterministic)
+                                           level=o.level, spp=o.spp, deterministic=o.deterministic,
+                                           lighting=self._lighting(views))
             lr = o.albedo_lr * (1.0 if t == 0 else o.albedo_refine)
             pixel = sequence.pixel_size(self.photo.cameras, run.norm.centre, run.norm.scale)
             return sequence.FrameImages(self.photo, run.albedo, lr, self.albedo_opt,
-                                        (run.norm.scale, run.norm.centre), pixel)
+                                        (run.norm.scale, run.norm.centre), pixel, light_lr=o.light_lr,
+                                        exposure=o.exposure)
         if self.rig is not None and frame.mesh is not None:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
+
+    def _lighting(self, views):
+        """The estimated lighting of a new renderer (``--lighting sh``, else None): the previous renderer's
+        coefficients (or the saved ones after a resume, or the start of :func:`~mi_loop.fitting.images.start_lighting`),
+        and gains of 1 for the new cameras (the saved ones where the cameras are those of the save)."""
+        import mitsuba as mi
+
+        from mi_loop.fitting.images import start_lighting
+
+        if self.run.options.lighting != "sh":
+            return None
+        light = start_lighting(views, 0.5)                 # the sequence's albedo starts grey 0.5
+        if self.photo is not None and self.photo.lighting is not None:
+            light.coefficients = mi.Float(self.photo.lighting.coefficients)
+        elif self.saved_lighting is not None:
+            coefficients, log_gain = self.saved_lighting
+            light.coefficients = mi.Float(np.asarray(coefficients, dtype=np.float32))
+            if len(log_gain) == 3 * len(views):
+                light.log_gain = mi.Float(np.asarray(log_gain, dtype=np.float32))
+        return light
 
     def fit(self, t: int, frame, P, N, iterations: int, progress):
         """Fit frame ``t`` from the latest frame's control points.
@@ -196,7 +220,8 @@ class FrameFitter:
         return V, info
 
     def state_arrays(self) -> dict:
-        """Return what ``state/NNNN.npz`` keeps besides ``x``, ``F`` and ``rest``: the albedo and its optimiser.
+        """Return what ``state/NNNN.npz`` keeps besides ``x``, ``F`` and ``rest``: the albedo and its optimiser, and
+        the estimated lighting (``light_coefficients``, ``light_log_gain``) with ``--lighting sh``.
 
         Returns
         -------
@@ -209,6 +234,11 @@ class FrameFitter:
         extra = {"albedo": self.run.albedo, "albedo_t": np.array(state["t"])}
         if "m" in state:
             extra |= {"albedo_m": state["m"], "albedo_v": state["v"]}
+        if self.photo is not None and self.photo.lighting is not None:
+            import drjit as dr
+
+            extra |= {"light_coefficients": np.array(dr.detach(self.photo.lighting.coefficients)),
+                      "light_log_gain": np.array(dr.detach(self.photo.lighting.log_gain))}
         return extra
 
 

@@ -258,7 +258,7 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
         bbox, how = (V.min(axis=0), V.max(axis=0)), {}
     c = np.full(V.shape, float(options.albedo))
     result = ImageFitResult(V=V, F=F, albedo=c, V0=V.copy(), F0=F.copy(), albedo0=c.copy(), bbox=bbox, start=how,
-                            lighting=start_lighting(views, options))
+                            lighting=start_lighting(views, options.albedo) if options.lighting == "sh" else None)
     size = (max(v.camera.width for v in views), max(v.camera.height for v in views))
     plan = stage_plan(options, size, len(F))
     total = sum(p["iterations"] for p in plan)
@@ -281,27 +281,27 @@ def fit_images(views, emitters, options: ImageFitOptions | None = None, *, start
     return result
 
 
-def start_lighting(views, options: ImageFitOptions):
-    """The estimated lighting's start (``options.lighting = 'sh'``, else None): uniform shading at the level
-    that makes the start albedo show the photos' mean colour inside their masks, every gain 1.
+def start_lighting(views, albedo: float = 0.5):
+    """The estimated lighting's start: uniform shading at the level that makes a grey ``albedo`` show the photos'
+    mean colour inside their masks, every gain 1.
 
     Parameters
     ----------
     views : sequence of mi_loop.io.capture.View
-    options : ImageFitOptions
+    albedo : float
+        The start albedo (grey), in (0, 1].
 
     Returns
     -------
-    mi_loop.render.lighting.Lighting or None
+    mi_loop.render.lighting.Lighting
+        With one gain per view.
     """
-    if options.lighting != "sh":
-        return None
     from mi_loop.render.lighting import N_COEFFS, Lighting, sh_basis
 
     inside = [v.rgb[v.mask >= 1.0] for v in views]
     colour = np.concatenate(inside).mean(axis=0) if sum(len(i) for i in inside) else np.full(3, 0.5)
     S = np.zeros((N_COEFFS, 3))
-    S[0] = np.maximum(colour, 1e-3) / max(float(options.albedo), 1e-3) / sh_basis(np.array([[0.0, 0.0, 1.0]]))[0, 0]
+    S[0] = np.maximum(colour, 1e-3) / max(float(albedo), 1e-3) / sh_basis(np.array([[0.0, 0.0, 1.0]]))[0, 0]
     return Lighting(len(views), S)
 
 

@@ -46,8 +46,12 @@ __all__ = ["COVER", "IMAGE_INITS", "LIGHTINGS", "N_VERTICES", "SAMPLES", "SAMPLE
 SAMPLE_MODES = ("vertices", "level1", "random")
 #: Starting shapes of :func:`mi_loop.fitting.images.fit_images` (a mesh is given as arrays instead).
 IMAGE_INITS = ("hull", "sphere")
-#: How :func:`~mi_loop.fitting.images.fit_images` lights the surface: the emitters it is given, or estimated.
+#: How the photos' surface is lit: by the emitters given, or by a lighting estimated (:mod:`mi_loop.render.lighting`).
 LIGHTINGS = ("given", "sh")
+LIGHTING_HELP = ("light the surface with the --emitters (given, default) or estimate the lighting: spherical "
+                 "harmonics of bands 0-2 (sh)")
+EXPOSURE_HELP = "with --lighting sh, no RGB gain per photo (exposure and white balance are estimated by default)"
+LIGHT_LR_HELP = "Adam step of the estimated lighting and gains (default %(default)s)"
 
 #: Defaults shared by both loops (one place each).
 N_VERTICES = 1000     # control vertices of the automatic template
@@ -212,6 +216,10 @@ class SequenceOptions:
         Adam step of the per-control-vertex albedo on the first frame (photos only).
     albedo_refine : float
         Albedo step of the later frames relative to ``albedo_lr`` (0: kept from the first frame).
+    lighting, exposure, light_lr :
+        As in :class:`ImageFitOptions` (photos only): the lighting and the
+        photos' gains are estimated on every frame, carried from frame to
+        frame while the cameras stay.
     seed : int
         Seed of the views, the frame samples and the automatic template.
     n_vertices : int
@@ -287,6 +295,9 @@ class SequenceOptions:
     albedo_refine: float = option(0.1, rule=WEIGHT,
                                   help="albedo step of later frames relative to --albedo-lr (default %(default)s; "
                                        "0: kept from the first frame)")
+    lighting: str = option("given", rule=one_of(LIGHTINGS), help=LIGHTING_HELP)
+    exposure: bool = option(True, rule=FLAG, flag="--no-exposure", help=EXPOSURE_HELP)
+    light_lr: float = option(0.01, rule=WEIGHT, help=LIGHT_LR_HELP)
     seed: int = option(0, rule=SEED, help=SEED_HELP.format(
         "the automatic template's sampling and of --samples random, of the views and of the frames' samples",
         "with --no-image or --deterministic "))
@@ -447,14 +458,9 @@ class ImageFitOptions:
                                                            "with --deterministic "))
     deterministic: bool = option(False, rule=FLAG,
                                  help="bit-reproducible fit: the reverse renders run on one thread (slower)")
-    lighting: str = option("given", rule=one_of(LIGHTINGS),
-                           help="light the surface with the --emitters (given, default) or estimate the lighting: "
-                                "spherical harmonics of bands 0-2 (sh)")
-    exposure: bool = option(True, rule=FLAG, flag="--no-exposure",
-                            help="with --lighting sh, no RGB gain per photo (exposure and white balance are "
-                                 "estimated by default)")
-    light_lr: float = option(0.01, rule=WEIGHT,
-                             help="Adam step of the estimated lighting and gains (default %(default)s)")
+    lighting: str = option("given", rule=one_of(LIGHTINGS), help=LIGHTING_HELP)
+    exposure: bool = option(True, rule=FLAG, flag="--no-exposure", help=EXPOSURE_HELP)
+    light_lr: float = option(0.01, rule=WEIGHT, help=LIGHT_LR_HELP)
     albedo_smooth: float = option(0.0, rule=WEIGHT, metavar="W",
                                   help="weight of the albedo's Laplacian over the cage, so that shading is explained "
                                        "by the geometry rather than painted into the albedo (default %(default)s: off)")

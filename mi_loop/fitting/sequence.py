@@ -148,6 +148,11 @@ class FrameImages:
         (photos in the capture's units); None: the same units (the rig).
     pixel : float
         Width of one pixel at the subject, in the fit's units.
+    light_lr : float
+        Step of the renderer's estimated lighting (its ``lighting``, where it has
+        one) in this frame; 0: kept as it is.
+    exposure : bool
+        Estimate the photos' gains too (with ``light_lr``).
     """
 
     renderer: object
@@ -156,6 +161,8 @@ class FrameImages:
     albedo_optimiser: object = None
     to_world: tuple | None = None
     pixel: float = 1.0
+    light_lr: float = 0.0
+    exposure: bool = True
 
 
 class Rig:
@@ -416,6 +423,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
             "seen": 1.0 if balance is None else balance.seen, **extra}
     if "albedo" in result.values:        # the fitted albedo, carried to the next frame
         info["albedo"] = result.values["albedo"]
+    for name, attr in terms.ImageTerm.LIGHTING:     # the estimated lighting, kept by the renderer
+        if name in result.values:
+            setattr(images.renderer.lighting, attr, mi.Float(result.values[name].astype(np.float32).ravel()))
     return result.values["x"], info
 
 
@@ -448,6 +458,11 @@ def _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params,
         params["albedo"] = Parameter(albedo, opt, Constant(images.albedo_lr), bounds=(0.0, 1.0))
     balance = ImageBalance(F, n, options, seen_weight, imls, vertex_op, radius, complete)
     renderer = images.renderer() if callable(images.renderer) else images.renderer
+    lighting = getattr(renderer, "lighting", None)
+    if lighting is not None and images.light_lr > 0:
+        params["light"] = Parameter(mi.Float(lighting.coefficients), Adam(), Constant(images.light_lr))
+        if images.exposure:
+            params["gain"] = Parameter(mi.Float(lighting.log_gain), Adam(), Constant(images.light_lr))
     parts.append(terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
                                  every=options.image_every, to_world=images.to_world, shaping=balance,
                                  seeds=seeds))
