@@ -18,8 +18,9 @@ Each setting is ``mi-loop fit-images CAPTURE -o OUT`` as a user runs it, with:
 
 Metric: two-sided mean and RMS distance to the normalised target (30,000 samples per side,
 seed 0) of the level-3 limit surface; the fit's seconds. ``relief.png``: each fit's limit
-surface rendered grey under a light from the side, from two of the capture's cameras, beside
-the photo: relief in the geometry shows there, relief painted into the albedo does not.
+surface rendered grey under a light from the side (``render_geometry``), from two of the
+capture's cameras, below the photos: relief in the geometry shows there, relief painted into
+the albedo does not.
 
     .venv/bin/python bench/bench_lighting.py bunny --settings true uniform sh sh-highlights \
         --json bench/results/lighting.jsonl [--fit-args "--iterations 200"]
@@ -122,18 +123,15 @@ def relief(capture: Path, fits: dict, path: Path, shown=(0, 5)) -> None:
     from mi_loop import io
     from mi_loop.io.capture import read_capture
     from mi_loop.io.srgb import linear_to_srgb
-    from mi_loop.render.captures import render_views
+    from mi_loop.render.captures import render_geometry
     from mi_loop.subdiv.masks import limit_mesh
 
     views = [read_capture(capture).views[k] for k in shown]
-    side = [{"type": "constant", "radiance": {"type": "rgb", "value": 0.15}},
-            {"type": "directional", "direction": [-0.9, -0.2, 0.4], "irradiance": {"type": "rgb", "value": 3.0}}]
     rows = [[linear_to_srgb(v.rgb) for v in views]]
     for out in fits.values():
         V, F = io.read_mesh(out / "control.ply")
         P, F_lim, N = limit_mesh(V, F, 3)
-        rows.append([linear_to_srgb(r.rgb) for r in render_views(P, F_lim, [v.camera for v in views], side,
-                                                                 normals=N, spp=16)])
+        rows.append([linear_to_srgb(im) for im in render_geometry(P, F_lim, N, [v.camera for v in views])])
     io.write_png(path, np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0))
 
 
@@ -143,6 +141,7 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", choices=sorted(SETTINGS), default=list(SETTINGS))
     parser.add_argument("--json", type=Path, help="append one JSON line per run")
     parser.add_argument("--fit-args", default="", help="extra fit-images flags, one string")
+    parser.add_argument("--relief-only", action="store_true", help="only redraw relief.png from the fits on disk")
     args = parser.parse_args()
     mi_loop.set_variant()
     base = OUT / args.target
@@ -154,6 +153,8 @@ def main() -> None:
     fits = {}
     for setting in args.settings:
         fits[setting] = base / setting
+        if args.relief_only:
+            continue
         row = run(capture, fits[setting], args.target, setting, args.fit_args.split())
         print(f"{setting:14s} mean {row['mean']:.5f} rms {row['rms']:.5f} fit {row['fit_s']:.0f} s", flush=True)
         if args.json:

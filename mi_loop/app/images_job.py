@@ -106,21 +106,12 @@ def _evaluate(result, views, emitters, options, log):
 
 
 def _relief(result, cameras, options) -> list:
-    """Grey renders of the fit's limit surface, each lit from above its camera's right: (h, w, 3) linear images."""
+    """The fit's geometry alone under a side light (:func:`~mi_loop.render.captures.render_geometry`)."""
     from mi_loop.fitting.images import tessellation_level
-    from mi_loop.render.captures import render_views
+    from mi_loop.render.captures import render_geometry
 
     P, F, N, _ = _limit(result.V, result.F, result.albedo, tessellation_level(len(result.F), options.triangles))
-    backdrop = [{"type": "constant", "radiance": {"type": "rgb", "value": 0.05}}]
-    images = []
-    for camera in cameras:
-        right, up, back = (camera.c2w[:3, i] for i in range(3))
-        light = 0.8 * right + 0.5 * up + 0.35 * back                       # towards the light
-        grey = 0.06 + 0.7 * np.maximum(N @ (light / np.linalg.norm(light)), 0.0)
-        # the shading as the surface's emission (no shadows, no Monte Carlo noise)
-        images.append(render_views(P, F, [camera], backdrop, colors=np.repeat(grey[:, None], 3, axis=1), normals=N,
-                                   spp=4 * options.spp, seed=7, emission=True)[0].rgb)
-    return images
+    return render_geometry(P, F, N, cameras, spp=4 * options.spp)
 
 
 def _holdout(result, views, held, emitters, options, log) -> tuple:

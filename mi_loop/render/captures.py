@@ -30,7 +30,7 @@ import numpy as np
 from mi_loop.errors import fail
 from mi_loop.render.plugin import COLOR_ATTRIBUTE, albedo_bsdf, plain_mesh
 
-__all__ = ["background", "camera_scene", "render_targets", "render_views", "view_seed"]
+__all__ = ["background", "camera_scene", "render_geometry", "render_targets", "render_views", "view_seed"]
 
 
 def view_seed(seed: int, k: int) -> int:
@@ -212,6 +212,42 @@ def render_views(V, F, cameras, emitters, *, colors=None, normals=None, spp: int
     return [View(camera=camera, rgb=np.clip(image[..., :3], 0, 1), mask=np.clip(image[..., 3], 0, 1),
                  name=f"view_{k:03d}")
             for k, camera, image in _renders(mesh, cameras, emitters, spp, lambda k: seed + k, alpha=True)]
+
+
+def render_geometry(V, F, normals, cameras, *, spp: int = 16, seed: int = 7) -> list:
+    """Render a mesh's geometry alone: grey, lit from above each camera's right, without shadows or noise.
+
+    Relief in the geometry shows here; relief painted into an albedo does not.
+    The shading ``0.06 + 0.7 max(0, n . l)`` (``l`` towards the camera's right,
+    up and back) is the mesh's emission (:func:`render_views` with
+    ``emission=True``) over a dark backdrop.
+
+    Parameters
+    ----------
+    V : (k, 3) float NumPy array
+    F : (t, 3) int NumPy array
+    normals : (k, 3) float NumPy array
+        Unit vertex normals.
+    cameras : list of mi_loop.io.capture.Camera
+    spp : int, optional
+        Samples per pixel (antialiasing only).
+    seed : int, optional
+
+    Returns
+    -------
+    list of (h, w, 3) float32 NumPy arrays
+        Linear RGB per camera.
+    """
+    N = np.asarray(normals, dtype=np.float64)
+    backdrop = [{"type": "constant", "radiance": {"type": "rgb", "value": 0.05}}]
+    images = []
+    for camera in cameras:
+        right, up, back = (camera.c2w[:3, i] for i in range(3))
+        light = 0.8 * right + 0.5 * up + 0.35 * back
+        grey = 0.06 + 0.7 * np.maximum(N @ (light / np.linalg.norm(light)), 0.0)
+        images.append(render_views(V, F, [camera], backdrop, colors=np.repeat(grey[:, None], 3, axis=1),
+                                   normals=N, spp=spp, seed=seed, emission=True)[0].rgb)
+    return images
 
 
 def render_targets(V, F, cameras, emitters, *, albedo, normals=None, spp: int = 64, seed: int = 0) -> list:

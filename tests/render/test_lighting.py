@@ -167,3 +167,17 @@ def test_rejected_lighting_and_highlights():
     with pytest.raises(ValueError, match=exactly("render_views(): expected colors (the emitted radiance) with "
                                                  "emission=True, got none")):
         render_views(V, F, [pole_camera()], BACKDROP, emission=True)
+
+
+def test_render_geometry_shows_the_side_light_on_a_sphere():
+    """At the pixel that sees a sphere's point facing the camera, n = the camera's back axis: the grey is
+    0.06 + 0.7 (0.35 / |l|), l = (0.8, 0.5, 0.35) in the camera's (right, up, back); the backdrop is 0.05."""
+    from mi_loop.render.captures import render_geometry
+
+    V, F = sphere_mesh(0.5, 4)
+    N = V / np.linalg.norm(V, axis=1, keepdims=True)
+    a = render_geometry(V, F, N, [pole_camera()])[0]
+    expected = 0.06 + 0.7 * 0.35 / np.linalg.norm([0.8, 0.5, 0.35])
+    np.testing.assert_allclose(a[16, 16], expected, rtol=0.01)
+    np.testing.assert_allclose(a[0, 0], 0.05, rtol=1e-5)
+    assert a[16, 24, 0] > a[16, 8, 0]                               # brighter on the camera's right, towards the light
