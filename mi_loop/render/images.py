@@ -93,6 +93,13 @@ class ImageRenderer:
         Run each reverse render on one LLVM thread (:func:`mi_loop.ad.threads.one_thread`):
         Mitsuba scatters the image gradient into the vertex buffer with atomic
         adds, whose order otherwise changes from run to run. Slower.
+    lighting : Lighting, optional
+        Estimated lighting (module docstring); its ``n_views`` must be the
+        number of views. ``integrator`` is then ``prb_projective`` at depth 1.
+    highlights : float, optional
+        ``t > 0``: a pixel inside a view's mask (mask 1) whose target exceeds
+        ``t`` times the render plus 0.02, channel by channel, is left out of
+        that view's loss (a highlight the diffuse model cannot show); 0: off.
 
     Attributes
     ----------
@@ -102,6 +109,7 @@ class ImageRenderer:
     weights : list of mi.TensorXf (h, w, 3) or None
         Per view, its pixels' weights in the loss (module docstring), None where all are 1.
     lighting : Lighting or None
+        The estimated lighting, whose coefficients and gains the renders read at each call.
     shape : mi.Mesh
         The ``loop_subdiv`` shape.
 

@@ -68,8 +68,8 @@ def sh_basis(n):
     Examples
     --------
     >>> Y = sh_basis(np.array([[0.0, 0.0, 1.0]]))
-    >>> np.round(Y, 4).tolist()
-    [[0.2821, 0.0, 0.4886, 0.0, 0.0, 0.0, 0.6308, 0.0, -0.0]]
+    >>> (np.round(Y, 4) + 0.0).tolist()
+    [[0.2821, 0.0, 0.4886, 0.0, 0.0, 0.0, 0.6308, 0.0, 0.0]]
     """
     if isinstance(n, np.ndarray):
         x, y, z = (np.asarray(n, dtype=np.float64)[:, i] for i in range(3))
@@ -179,7 +179,18 @@ class Lighting:
 
 
 def sh_gradient(n) -> list:
-    """The gradients of :func:`sh_basis` with respect to the direction (Dr.Jit 3-vector): list of 9 ``mi.Vector3f``."""
+    """Return the gradients of :func:`sh_basis` with respect to the direction.
+
+    Parameters
+    ----------
+    n : Dr.Jit 3-vector of width k
+        Directions (the gradient of the polynomials, not projected onto the sphere).
+
+    Returns
+    -------
+    list of 9 mi.Vector3f
+        ``d Y_j / d n`` in the order of :func:`sh_basis`.
+    """
     import mitsuba as mi
 
     x, y, z = n.x, n.y, n.z
