@@ -33,7 +33,10 @@ def load_oriented_points(path, n_samples: int | None = None, seed: int = 0):
     ----------
     path : str or os.PathLike
         A ``.ply``, ``.xyz``, ``.pts``, ``.txt``, ``.npz``, ``.obj``, ``.off``,
-        ``.glb`` or ``.gltf`` file.
+        ``.glb`` or ``.gltf`` file. An NPZ holds ``points`` (any float type) and
+        optional ``normals``; with ``loc`` and ``scale`` (Occupancy Networks and
+        Occupancy Flow, which publish D-FAUST so: ``points = (X - loc) / scale``)
+        the points are returned in their own frame, ``points * scale + loc``.
     n_samples : int or None
         Meshes: number of surface samples (default ``max(100_000, #vertices)``).
         Point clouds: if given and smaller than the point count, a random subset
@@ -172,8 +175,10 @@ def _read_npz(path):
             names = sorted(data.files)
             if "points" not in names:
                 fail(_FUNC, f"an array 'points' (N, 3) and optional 'normals' (N, 3) in '{path}'", f"arrays {names}")
-            P = np.asarray(data["points"])
+            P = np.asarray(data["points"], dtype=np.float64)
             N = np.asarray(data["normals"]) if "normals" in names else None
+            if "loc" in names or "scale" in names:     # Occupancy Networks / Flow (D-FAUST): normalised points
+                P = _denormalise(P, data, names, path)
     except (OSError, EOFError) as exc:
         fail(_FUNC, f"a readable NPZ file '{path}'", f"{type(exc).__name__}: {exc}")
     except ValueError as exc:
@@ -181,6 +186,17 @@ def _read_npz(path):
             raise
         fail(_FUNC, f"a readable NPZ file '{path}'", f"{type(exc).__name__}: {exc}")
     return P, N
+
+
+def _denormalise(P, data, names, path):
+    """``points * scale + loc``: the frame of an Occupancy Networks NPZ (its points are ``(X - loc) / scale``)."""
+    if "loc" not in names or "scale" not in names:
+        fail(_FUNC, f"both 'loc' (3,) and 'scale' () with normalised points in '{path}'", f"arrays {names}")
+    loc, scale = np.asarray(data["loc"], dtype=np.float64), np.asarray(data["scale"], dtype=np.float64)
+    if loc.shape != (3,) or scale.size != 1 or not np.isfinite(loc).all() or not float(scale) > 0:
+        fail(_FUNC, f"'loc' of shape (3,) and a finite 'scale' > 0 in '{path}'",
+             f"loc of shape {loc.shape}, scale {scale.tolist()}")
+    return P * float(scale) + loc
 
 
 def _read_ply(path):

@@ -195,3 +195,23 @@ def test_ply_with_partial_normals_is_rejected(tmp_path):
     (tmp_path / "p.ply").write_text(head)
     assert _error(tmp_path / "p.ply") == (f"expected PLY vertex normals nx, ny, nz all three or none in "
                                           f"'{tmp_path / 'p.ply'}', got only ['nx']")
+
+
+def test_an_occupancy_networks_npz_is_read_in_its_own_frame(tmp_path):
+    """D-FAUST as Occupancy Flow publishes it: float16 ``points = (X - loc) / scale`` per frame with ``loc``
+    and ``scale``; the reader returns X (to float16's precision), and each frame's own loc and scale count."""
+    X = np.random.default_rng(0).uniform([-0.3, -0.9, -0.2], [0.4, 0.9, 0.3], size=(500, 3))
+    for k, (loc, scale) in enumerate((([0.02, 0.30, -0.08], 1.80), ([-0.01, 0.34, -0.06], 1.88))):
+        loc = np.array(loc)
+        np.savez(tmp_path / f"{k}.npz", points=((X - loc) / scale).astype(np.float16),
+                 loc=loc.astype(np.float16), scale=np.float64(scale))
+        P, N, info = load_oriented_points(tmp_path / f"{k}.npz")
+        np.testing.assert_allclose(P, X, atol=2e-3 * scale)          # float16: 11 bits of the unit cube
+        assert P.dtype == np.float64 and N is None and info["n_points"] == 500
+    P = sphere_points(10)[0]
+    np.savez(tmp_path / "loc.npz", points=P, loc=np.zeros(3))
+    assert _error(tmp_path / "loc.npz") == (f"expected both 'loc' (3,) and 'scale' () with normalised points in "
+                                            f"'{tmp_path / 'loc.npz'}', got arrays ['loc', 'points']")
+    np.savez(tmp_path / "scale.npz", points=P, loc=np.zeros(3), scale=np.float64(-1.0))
+    assert _error(tmp_path / "scale.npz") == (f"expected 'loc' of shape (3,) and a finite 'scale' > 0 in "
+                                              f"'{tmp_path / 'scale.npz'}', got loc of shape (3,), scale -1.0")
