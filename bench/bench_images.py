@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -36,7 +35,6 @@ import captures  # noqa: E402
 import mi_loop  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-MI_LOOP = Path(sys.executable).with_name("mi-loop")
 N_SAMPLES = 30_000
 
 
@@ -51,21 +49,12 @@ def albedo_error(P, C, name):
 
 def run_ours(capture: Path, out: Path, name: str, variant: str, extra: list) -> dict:
     from mi_loop import io
-    from mi_loop.metrics import two_sided
-    from mi_loop.subdiv.masks import limit_mesh
 
-    cmd = [str(MI_LOOP), "fit-images", str(capture), "-o", str(out), "--quiet", *extra]
-    t = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    wall = time.perf_counter() - t
-    report = json.loads((out / "report.json").read_text())
-    V, F = io.read_mesh(out / "control.ply")
-    P, F_lim, _ = limit_mesh(V, F, 3)
-    T, F_t = captures.normalised_target(name)
-    m = two_sided(P, F_lim, T, F_t, n_samples=N_SAMPLES, seed=0)
-    row = {"method": "mi-loop", "target": name, "variant": variant, "mean": m["mean"], "rms": m["rms"],
-           "wall_s": wall, "fit_s": report["timings_s"]["fit"], "params": sum(report["parameters"].values()),
-           "control_vertices": len(V), "stages": report["stages"], "command": " ".join(cmd[1:])}
+    fit = captures.fit_and_measure(capture, out, name, extra, n_samples=N_SAMPLES)
+    report = fit["report"]
+    row = {"method": "mi-loop", "target": name, "variant": variant, "mean": fit["mean"], "rms": fit["rms"],
+           "wall_s": fit["wall_s"], "fit_s": report["timings_s"]["fit"], "params": sum(report["parameters"].values()),
+           "control_vertices": len(fit["V"]), "stages": report["stages"], "command": fit["command"]}
     if variant == "tex":
         limit = io.read_vertex_colors(out / "limit.ply")
         row["albedo_error"] = albedo_error(io.read_mesh(out / "limit.ply")[0], limit, name)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -43,7 +42,6 @@ import captures  # noqa: E402
 import mi_loop  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-MI_LOOP = Path(sys.executable).with_name("mi-loop")
 OUT = REPO / "bench" / "results" / "lighting"
 SETTINGS = {"true": ["--emitters", "{lights}"], "uniform": [], "sh": ["--lighting", "sh"],
             "sh-highlights": ["--lighting", "sh", "--highlights", "1.5"]}
@@ -100,22 +98,10 @@ def glossy_capture(name: str, out: Path, *, views: int = 16, res: int = 256, spp
 
 
 def run(capture: Path, out: Path, name: str, setting: str, extra: list) -> dict:
-    from mi_loop import io
-    from mi_loop.metrics import two_sided
-    from mi_loop.subdiv.masks import limit_mesh
-
     flags = [f.format(lights=capture.parent.parent / "lights.xml") for f in SETTINGS[setting]]
-    cmd = [str(MI_LOOP), "fit-images", str(capture), "-o", str(out), "--quiet", *flags, *extra]
-    t = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    wall = time.perf_counter() - t
-    report = json.loads((out / "report.json").read_text())
-    V, F = io.read_mesh(out / "control.ply")
-    P, F_lim, _ = limit_mesh(V, F, 3)
-    T, F_t = captures.normalised_target(name)
-    m = two_sided(P, F_lim, T, F_t, n_samples=30_000, seed=0)
-    return {"target": name, "setting": setting, "mean": m["mean"], "rms": m["rms"], "wall_s": wall,
-            "fit_s": report["timings_s"]["fit"], "command": " ".join(cmd[1:])}
+    fit = captures.fit_and_measure(capture, out, name, flags + extra)
+    return {"target": name, "setting": setting, "mean": fit["mean"], "rms": fit["rms"], "wall_s": fit["wall_s"],
+            "fit_s": fit["report"]["timings_s"]["fit"], "command": fit["command"]}
 
 
 def relief(capture: Path, fits: dict, path: Path, shown=(0, 5)) -> None:

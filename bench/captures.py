@@ -13,6 +13,9 @@ a diffuse BSDF: grey 0.5 (``grey``) or a smooth procedural per-vertex albedo (``
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -27,6 +30,7 @@ TARGETS = {"bunny": DATA / "multiview" / "bunny.obj", "armadillo": DATA / "multi
            "spot": DATA / "static" / "spot.obj"}
 OUT = REPO / "bench" / "results" / "captures"
 VIEWS, RES, SPP, DISTANCE, FOV = 16, 256, 64, 1.9, 35.0
+MI_LOOP = Path(sys.executable).with_name("mi-loop")
 
 
 def normalised_target(name: str):
@@ -60,6 +64,25 @@ def make_capture(name: str, variant: str, out: Path = OUT, *, views: int = VIEWS
     shots = render_views(V, F, cameras, [dict(e) for e in DEFAULT_EMITTERS], colors=colors,
                          normals=vertex_normals(V, F), spp=spp)
     return write_capture(out / f"{name}_{variant}", shots)
+
+
+def fit_and_measure(capture: Path, out: Path, name: str, flags: list, n_samples: int = 30_000) -> dict:
+    """Run ``mi-loop fit-images CAPTURE -o OUT --quiet FLAGS`` as a user does and measure the fit against the
+    normalised target ``name``: ``command``, ``wall_s``, ``report`` (report.json), ``V`` (control points),
+    ``mean`` and ``rms`` (two-sided, of the level-3 limit surface, ``n_samples`` per side, seed 0)."""
+    from mi_loop import io
+    from mi_loop.metrics import two_sided
+    from mi_loop.subdiv.masks import limit_mesh
+
+    cmd = [str(MI_LOOP), "fit-images", str(capture), "-o", str(out), "--quiet", *flags]
+    t = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t
+    V, F = io.read_mesh(out / "control.ply")
+    P, F_lim, _ = limit_mesh(V, F, 3)
+    m = two_sided(P, F_lim, *normalised_target(name), n_samples=n_samples, seed=0)
+    return {"command": " ".join(cmd[1:]), "wall_s": wall, "report": json.loads((out / "report.json").read_text()),
+            "V": V, "mean": m["mean"], "rms": m["rms"]}
 
 
 def main() -> None:

@@ -328,10 +328,7 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
                              parameterisation=smooth)}
     if options.albedo_lr > 0:
         params["albedo"] = Parameter(albedo, Adam(), Constant(options.albedo_lr), bounds=(0.0, 1.0))
-    if lighting is not None and options.light_lr > 0:
-        params["light"] = Parameter(mi.Float(lighting.coefficients), Adam(), Constant(options.light_lr))
-        if options.exposure:
-            params["gain"] = Parameter(mi.Float(lighting.log_gain), Adam(), Constant(options.light_lr))
+    params |= terms.lighting_parameters(lighting, options.light_lr, options.exposure)
     parts = [terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
                              seeds=seeds.child(k))]
     if options.laplacian > 0:
@@ -346,9 +343,7 @@ def _fit_stage(V, F, c, views, emitters, options, stage, k, diag, seeds, done, t
                       convergence=stall, failure=Failure("fit_images", context=f"stage {k}, "),
                       progress=None if progress is None else (lambda i, _, loss: progress(done + i, total, k, loss)))
     c_fit = result.values["albedo"] if "albedo" in result.values else np.asarray(c, dtype=np.float64)
-    for name, attr in terms.ImageTerm.LIGHTING:
-        if name in result.values:
-            setattr(lighting, attr, mi.Float(result.values[name].astype(np.float32).ravel()))
+    terms.keep_lighting(lighting, result.values)
     return result.values["x"], c_fit, {"iterations": result.iterations, "stalled": result.converged,
                                        "width": views[0].camera.width, "height": views[0].camera.height,
                                        "history": result.history}

@@ -423,9 +423,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
             "seen": 1.0 if balance is None else balance.seen, **extra}
     if "albedo" in result.values:        # the fitted albedo, carried to the next frame
         info["albedo"] = result.values["albedo"]
-    for name, attr in terms.ImageTerm.LIGHTING:     # the estimated lighting, kept by the renderer
-        if name in result.values:
-            setattr(images.renderer.lighting, attr, mi.Float(result.values[name].astype(np.float32).ravel()))
+    if images is not None and getattr(images.renderer, "lighting", None) is not None:
+        terms.keep_lighting(images.renderer.lighting, result.values)     # kept by the renderer for the next frame
     return result.values["x"], info
 
 
@@ -458,11 +457,7 @@ def _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params,
         params["albedo"] = Parameter(albedo, opt, Constant(images.albedo_lr), bounds=(0.0, 1.0))
     balance = ImageBalance(F, n, options, seen_weight, imls, vertex_op, radius, complete)
     renderer = images.renderer() if callable(images.renderer) else images.renderer
-    lighting = getattr(renderer, "lighting", None)
-    if lighting is not None and images.light_lr > 0:
-        params["light"] = Parameter(mi.Float(lighting.coefficients), Adam(), Constant(images.light_lr))
-        if images.exposure:
-            params["gain"] = Parameter(mi.Float(lighting.log_gain), Adam(), Constant(images.light_lr))
+    params |= terms.lighting_parameters(getattr(renderer, "lighting", None), images.light_lr, images.exposure)
     parts.append(terms.ImageTerm(renderer, albedo, views_per_iteration=options.views_per_iteration,
                                  every=options.image_every, to_world=images.to_world, shaping=balance,
                                  seeds=seeds))

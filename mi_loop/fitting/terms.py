@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CageLaplacian", "Coverage", "Distance", "Fold", "ImageTerm", "Rigidity", "Term"]
+__all__ = ["CageLaplacian", "Coverage", "Distance", "Fold", "ImageTerm", "Rigidity", "Term", "keep_lighting",
+           "lighting_parameters"]
 
 
 class Term:
@@ -307,3 +308,42 @@ class ImageTerm(Term):
             out["albedo"] = dr.grad(c)
         out |= {name: dr.grad(v) for name, v in lit.items()}
         return out, float(np.mean(losses))
+
+
+def lighting_parameters(lighting, lr: float, exposure: bool) -> dict:
+    """The loop parameters of an estimated lighting that :class:`ImageTerm` differentiates.
+
+    Parameters
+    ----------
+    lighting : mi_loop.render.lighting.Lighting or None
+        The renderer's lighting (None: a given one, nothing to estimate).
+    lr : float
+        Adam step of the coefficients and the log-gains; 0: kept as they are.
+    exposure : bool
+        Estimate the photos' gains too.
+
+    Returns
+    -------
+    dict of str to Parameter
+        ``'light'`` (and ``'gain'``), or empty.
+    """
+    import mitsuba as mi
+
+    from mi_loop.fitting.loop import Parameter
+    from mi_loop.fitting.optimisers import Adam, Constant
+
+    if lighting is None or lr <= 0:
+        return {}
+    out = {"light": Parameter(mi.Float(lighting.coefficients), Adam(), Constant(lr))}
+    if exposure:
+        out["gain"] = Parameter(mi.Float(lighting.log_gain), Adam(), Constant(lr))
+    return out
+
+
+def keep_lighting(lighting, values: dict) -> None:
+    """Leave in ``lighting`` the estimate of a loop's ``values`` (:attr:`~mi_loop.fitting.loop.LoopResult.values`)."""
+    import mitsuba as mi
+
+    for name, attr in ImageTerm.LIGHTING:
+        if name in values:
+            setattr(lighting, attr, mi.Float(values[name].astype(np.float32).ravel()))
