@@ -341,7 +341,15 @@ def lighting_parameters(lighting, lr: float, exposure: bool) -> dict:
 
 
 def keep_lighting(lighting, values: dict) -> None:
-    """Leave in ``lighting`` the estimate of a loop's ``values`` (:attr:`~mi_loop.fitting.loop.LoopResult.values`)."""
+    """Leave in ``lighting`` the estimate a loop found.
+
+    Parameters
+    ----------
+    lighting : mi_loop.render.lighting.Lighting
+        Updated in place: its ``coefficients`` and ``log_gain`` where the loop estimated them.
+    values : dict of str to NumPy array
+        A loop's :attr:`~mi_loop.fitting.loop.LoopResult.values` (``'light'``, ``'gain'``).
+    """
     import mitsuba as mi
 
     for name, attr in ImageTerm.LIGHTING:
