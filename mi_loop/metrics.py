@@ -11,8 +11,9 @@ only prefilters candidate triangles (no approximation).
 - :func:`flipped_fraction`: area of a surface facing against its target (folds).
 - :func:`self_intersections`: the triangles of a mesh that cross another of its
   triangles (pymeshlab), e.g. where a fold or two fused parts pass through each other.
-- :func:`attach` and :func:`drift`: correspondence drift against a target
-  sequence in correspondence (the same barycentric point followed over time).
+- :func:`attach`, :func:`attach_points` and :func:`drift`: correspondence drift
+  against a target sequence in correspondence, meshes or points (the same
+  barycentric point followed over time).
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from mi_loop.mesh.checks import check_points, check_triangles
 from mi_loop.mesh.geometry import face_normals
 from mi_loop.mesh.sampling import closest_points, sample_surface, surface_distances
 
-__all__ = ["Attachment", "attach", "drift", "flipped_fraction", "nps_metrics", "self_intersections",
+__all__ = ["Attachment", "attach", "attach_points", "drift", "flipped_fraction", "nps_metrics", "self_intersections",
            "two_sided"]
 
 
@@ -277,7 +278,7 @@ def self_intersections(V, F) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Attachment:
-    """Points attached to a target mesh: a triangle and barycentric coordinates each (:func:`attach`).
+    """Points attached to a target: a triangle and barycentric coordinates each (:func:`attach`, :func:`attach_points`).
 
     Attributes
     ----------
@@ -286,12 +287,16 @@ class Attachment:
     bary : (k, 3) float64 NumPy array
         Barycentric coordinates in it (non-negative, summing to 1).
     F : (m, 3) int64 NumPy array
-        The target's triangles (shared by every frame of the sequence).
+        The target's triangles (shared by every frame of the sequence); for a
+        point cloud (:func:`attach_points`), each point's 3 nearest cloud points.
+    cloud : bool
+        Attached to a point cloud: :func:`drift` measures relative to the whole cloud's diagonal.
     """
 
     face: np.ndarray
     bary: np.ndarray
     F: np.ndarray
+    cloud: bool = False
 
     def points(self, V) -> np.ndarray:
         """The attached points on a mesh with the target's connectivity and vertices ``V``: ``(k, 3)``."""
@@ -323,7 +328,55 @@ def attach(points, V, F) -> Attachment:
     V, F = check_triangles(V, F, "attach", "target")
     points = check_points(points, "attach")
     _, C, face = closest_points(V, F, points)
-    a, b, c = (V[F[face, k]] for k in range(3))
+    return Attachment(face.astype(np.int64), _clamped_barycentric(C, *(V[F[face, k]] for k in range(3))), F)
+
+
+def attach_points(points, P) -> Attachment:
+    """Attach points to a point cloud in correspondence: the triangle of their 3 nearest points.
+
+    Each point is projected on the plane of the triangle of its 3 nearest
+    cloud points; its barycentric coordinates there are clamped to the
+    triangle (negative ones set to 0, the rest rescaled to sum to 1). The same
+    combination of the same cloud points at a later frame is where the point
+    should be (:func:`drift`).
+
+    Parameters
+    ----------
+    points : (k, 3) float NumPy array
+        Points to attach (e.g. the limit points of the control vertices at frame 0).
+    P : (N, 3) float NumPy array
+        The cloud at frame 0 (point ``i`` the same material point in every frame), N >= 3.
+
+    Returns
+    -------
+    Attachment
+        With ``F`` the triangles of nearest points (one per attached point) and ``cloud`` True.
+
+    Examples
+    --------
+    >>> P = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])
+    >>> a = attach_points(np.array([[0.25, 0.25, 1.0]]), P)
+    >>> sorted(a.F[0].tolist()), a.points(2 * P).round(6).tolist()
+    ([0, 1, 2], [[0.5, 0.5, 0.0]])
+    """
+    from scipy.spatial import cKDTree
+
+    points = check_points(points, "attach_points")
+    P = check_points(P, "attach_points", "cloud points")
+    if len(P) < 3:
+        fail("attach_points", "a cloud of at least 3 points", f"{len(P)}")
+    _, idx = cKDTree(P).query(points, k=3, workers=-1)
+    a, b, c = (P[idx[:, j]] for j in range(3))
+    n = np.cross(b - a, c - a)
+    nn = np.einsum("ij,ij->i", n, n)
+    t = np.where(nn > 0, np.einsum("ij,ij->i", points - a, n) / np.where(nn > 0, nn, 1.0), 0.0)
+    C = points - t[:, None] * n                       # on the triangle's plane
+    return Attachment(np.arange(len(points), dtype=np.int64), _clamped_barycentric(C, a, b, c),
+                      idx.astype(np.int64), cloud=True)
+
+
+def _clamped_barycentric(C, a, b, c) -> np.ndarray:
+    """Barycentric coordinates of ``C`` in triangles ``(a, b, c)``, negatives clamped to 0, summing to 1."""
     v0, v1, v2 = b - a, c - a, C - a
     d00, d01, d11 = (np.einsum("ij,ij->i", x, y) for x, y in ((v0, v0), (v0, v1), (v1, v1)))
     d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
@@ -332,8 +385,7 @@ def attach(points, V, F) -> Attachment:
     w1 = np.where(ok, (d11 * d20 - d01 * d21) / np.where(ok, den, 1.0), 0.0)
     w2 = np.where(ok, (d00 * d21 - d01 * d20) / np.where(ok, den, 1.0), 0.0)
     bary = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=1), 0.0, None)
-    bary /= bary.sum(1, keepdims=True)
-    return Attachment(face.astype(np.int64), bary, F)
+    return bary / bary.sum(1, keepdims=True)
 
 
 def drift(points, attachment: Attachment, V) -> dict:
@@ -344,7 +396,7 @@ def drift(points, attachment: Attachment, V) -> dict:
     points : (k, 3) float NumPy array
         The same points at frame ``t`` (e.g. control-vertex limit points of the fit at ``t``).
     attachment : Attachment
-        Their attachment at frame 0 (:func:`attach`).
+        Their attachment at frame 0 (:func:`attach` or :func:`attach_points`).
     V : (n, 3) float NumPy array
         Target vertices at frame ``t`` (the attachment's connectivity).
 
@@ -365,7 +417,7 @@ def drift(points, attachment: Attachment, V) -> dict:
     V = check_points(V, "drift", "target vertices")
     if len(points) != len(attachment.face):
         fail("drift", f"{len(attachment.face)} points (as attached)", f"{len(points)}")
-    used = V[np.unique(attachment.F)]
+    used = V if attachment.cloud else V[np.unique(attachment.F)]
     diag = float(np.linalg.norm(used.max(0) - used.min(0)))
     d = np.linalg.norm(points - attachment.points(V), axis=1) / diag
     return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max())}

@@ -194,6 +194,33 @@ def test_drift_follows_the_barycentric_point_of_a_deforming_mesh():
         drift(on[:39], a, Vt)
 
 
+def test_drift_against_points_in_correspondence_is_zero_for_a_rigid_motion():
+    """Points attached to the triangles of their 3 nearest cloud points follow a rigid motion of the
+    cloud exactly; points moved off it drift by what they moved; the diagonal is the whole cloud's."""
+    from scipy.spatial.transform import Rotation
+
+    from mi_loop.metrics import attach_points, drift
+
+    rng = np.random.default_rng(1)
+    P = rng.normal(size=(3000, 3))
+    P /= np.linalg.norm(P, axis=1, keepdims=True)
+    Q = rng.normal(size=(200, 3))
+    Q *= 1.002 / np.linalg.norm(Q, axis=1, keepdims=True)
+    a = attach_points(Q, P)
+    assert a.cloud and np.all(a.bary >= 0) and np.allclose(a.bary.sum(1), 1.0)
+    third = np.linalg.norm(P[a.F] - Q[:, None], axis=2).max(1)          # a point of the triangle: no farther
+    assert np.all(np.linalg.norm(a.points(P) - Q, axis=1) <= third + 1e-12)
+    R, t = Rotation.from_rotvec([0.3, -1.1, 0.4]).as_matrix(), np.array([0.5, -2.0, 1.0])
+    Pt = P @ R.T + t
+    on = a.points(P) @ R.T + t
+    assert drift(on, a, Pt)["max"] < 1e-12
+    d = drift(on + [0.0, 0.03, 0.0], a, Pt)
+    diag = np.linalg.norm(np.ptp(Pt, axis=0))
+    assert d["mean"] == pytest.approx(0.03 / diag, rel=1e-9) and d["max"] == pytest.approx(0.03 / diag, rel=1e-9)
+    with pytest.raises(ValueError, match=r"^attach_points\(\): expected a cloud of at least 3 points, got 2$"):
+        attach_points(Q, P[:2])
+
+
 def test_two_sided_exact_measures_the_surface_not_the_spacing_of_its_points():
     from mi_loop import datasets
 

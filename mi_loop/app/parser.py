@@ -250,8 +250,8 @@ def _sequence_parser(sub, common) -> None:
                         "the frame's calibrated photos with masks, fitted together with the geometry")
     _emitters(p)
     p.add_argument("--reference", type=Path, metavar="NPZ",
-                   help="clean meshes in correspondence (vertices (T,V,3), faces), one per frame: "
-                        "metrics.csv then measures distances, folds and drift against them")
+                   help="clean meshes (vertices (T,V,3), faces) or points (points (T,N,3)) in correspondence, "
+                        "one per frame: metrics.csv then measures distances, folds and drift against them")
     _frames_option(p, "; applies to the captures and the reference too")
     p.add_argument("--animation", metavar="NAME",
                    help="bake this animation of a skinned glTF/GLB into the frames")

@@ -106,7 +106,7 @@ def report_page(run, finished, view, fps: float) -> str:
     def target(i):
         if run.sources.reference is not None:
             ref = run.sources.reference[frames[i]]()
-            return ("mesh", ref.vertices, ref.faces)
+            return ("points", ref.vertices, None) if ref.faces is None else ("mesh", ref.vertices, ref.faces)
         return run.reader.target(frames[i])
 
     cages = [io.read_mesh(p) for p in finished.controls]

@@ -30,8 +30,8 @@ class Sources:
     emitters : pathlib.Path or None
         Mitsuba XML of the capture's lighting (None: constant environment, radiance 1).
     reference : list of mi_loop.io.frames.Frame or None
-        Clean meshes in correspondence, one per (selected) frame, for the
-        distances, folds and drift (the frames themselves when they are such meshes).
+        Clean meshes or points in correspondence, one per (selected) frame, for
+        the distances, folds and drift (the frames themselves when they are such meshes or points).
     """
 
     captures: list | None = None
@@ -51,7 +51,7 @@ def read_sources(frames: list, images, emitters, reference, selection: slice | N
     emitters : pathlib.Path or None
         ``--emitters``.
     reference : pathlib.Path or None
-        ``--reference``: clean meshes in correspondence (an NPZ), one per frame.
+        ``--reference``: clean meshes or points in correspondence (an NPZ), one per frame.
     selection : slice or None
         ``--frames``.
     log : mi_loop.app.progress.Reporter
@@ -80,10 +80,11 @@ def read_sources(frames: list, images, emitters, reference, selection: slice | N
     if reference is not None:
         ref = io.read_frames([reference])
         if len(ref) != n:
-            fail("fit-sequence --reference", f"one clean mesh per frame ({n} frames)", f"{len(ref)} in '{reference}'")
+            fail("fit-sequence --reference", f"one reference frame per frame ({n} frames)",
+                 f"{len(ref)} in '{reference}'")
         if not all(f.correspondence for f in ref):
-            fail("fit-sequence --reference", "meshes in correspondence (an NPZ with vertices (T, V, 3) and faces)",
-                 f"'{reference}'")
+            fail("fit-sequence --reference", "meshes or points in correspondence (an NPZ with vertices (T, V, 3) "
+                 "and faces, or with points (T, N, 3))", f"'{reference}'")
         ref = select_frames(ref, selection, "fit-sequence --frames")
     elif all(getattr(f, "correspondence", False) for f in frames):
         ref = select_frames(frames, selection, "fit-sequence --frames")

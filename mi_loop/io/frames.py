@@ -61,9 +61,9 @@ class Frame:
     Attributes
     ----------
     correspondence : bool
-        Whether every frame of its sequence is a mesh with the same faces and
-        vertex order (an NPZ sequence, a baked animation): vertex ``i`` is the
-        same material point in every frame.
+        Whether every frame of its sequence has the same vertex order (an NPZ
+        sequence of meshes with the same faces or of points, a baked
+        animation): vertex ``i`` is the same material point in every frame.
     """
 
     def __init__(self, read, correspondence: bool = False):
@@ -143,7 +143,8 @@ def read_frames(inputs, *, animation: str | None = None, fps: float = 24.0) -> l
     Parameters
     ----------
     inputs : list of str or os.PathLike
-        One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``; or mesh /
+        One NPZ file with ``vertices (T, V, 3)`` and ``faces (F, 3)``, or with
+        ``points (T, N, 3)`` (point clouds in correspondence); or mesh /
         point-cloud files (any suffix :func:`~mi_loop.io.points.load_oriented_points`
         reads), directories (their files with a suffix in :data:`FRAME_SUFFIXES`,
         sorted by name; hidden files skipped) or glob patterns such as
@@ -198,16 +199,27 @@ def read_frames(inputs, *, animation: str | None = None, fps: float = 24.0) -> l
             fail("read_frames", "an existing file, directory or glob pattern", f"'{p}': no such file or directory")
     if not paths:
         fail("read_frames", "at least one frame file", f"none in {[str(i) for i in inputs]}")
-    if len(paths) == 1 and paths[0].suffix.lower() == ".npz":
+    if len(paths) == 1 and paths[0].suffix.lower() == ".npz" and not _npz_point_cloud(paths[0]):
         return _npz_sequence(paths[0])
     return [Frame(_reader(p)) for p in paths]
 
 
+def _npz_point_cloud(path: Path) -> bool:
+    """Whether an NPZ holds one point cloud (``points (N, 3)``, as D-FAUST's frames), not a sequence."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return "points" in data.files and "vertices" not in data.files and data["points"].ndim == 2
+    except (OSError, EOFError, ValueError):
+        return False                                  # reported by the sequence reader
+
+
 def _npz_sequence(path: Path) -> list:
-    want = "arrays 'vertices' (T, V, 3) and 'faces' (F, 3)"
+    want = "arrays 'vertices' (T, V, 3) and 'faces' (F, 3), or 'points' (T, N, 3)"
     try:
         with np.load(path, allow_pickle=False) as data:
             names = sorted(data.files)
+            if "points" in names and "vertices" not in names:
+                return _points_sequence(path, np.asarray(data["points"], dtype=np.float64))
             if "vertices" not in names or "faces" not in names:
                 fail("read_frames", f"{want} in '{path}'", f"arrays {names}")
             Vs, F = np.asarray(data["vertices"], dtype=np.float64), np.asarray(data["faces"])
@@ -222,6 +234,16 @@ def _npz_sequence(path: Path) -> list:
     if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
         fail("read_frames", f"{want} in '{path}'", f"faces of shape {F.shape} and dtype {F.dtype}")
     return [Frame(lambda t=t: FrameData(f"{path.stem}[{t}]", Vs[t], F), correspondence=True) for t in range(len(Vs))]
+
+
+def _points_sequence(path: Path, Ps: np.ndarray) -> list:
+    """Point clouds in correspondence: ``points (T, N, 3)``, point ``k`` the same material point in every frame."""
+    if Ps.ndim != 3 or Ps.shape[2] != 3 or len(Ps) == 0 or Ps.shape[1] < 3:
+        fail("read_frames", f"'points' of shape (T, N, 3) with T > 0 and N >= 3 in '{path}'",
+             f"points of shape {Ps.shape}")
+    if not np.isfinite(Ps).all():
+        fail("read_frames", f"finite points in '{path}'", f"{int((~np.isfinite(Ps)).any(2).sum())} non-finite")
+    return [Frame(lambda t=t: FrameData(f"{path.stem}[{t}]", Ps[t]), correspondence=True) for t in range(len(Ps))]
 
 
 def _animation(inputs, animation: str, fps: float) -> list:

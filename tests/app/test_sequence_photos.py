@@ -168,7 +168,7 @@ def test_a_reference_of_another_length_is_refused(capture, tmp_path, capsys):
     np.savez(tmp_path / "short.npz", vertices=Vs[:2], faces=F)
     line = one_line_error(capsys, ["fit-sequence", str(depth), "--reference", str(tmp_path / "short.npz"),
                                    "-o", str(tmp_path / "out")])
-    assert line == ("mi-loop: error: fit-sequence --reference: expected one clean mesh per frame (3 frames), "
+    assert line == ("mi-loop: error: fit-sequence --reference: expected one reference frame per frame (3 frames), "
                     f"got 2 in '{tmp_path / 'short.npz'}'")
 
 

@@ -7,6 +7,9 @@ from mi_loop import datasets, io
 
 from helpers import DATA, value_error
 
+#: What an NPZ sequence must hold, as the messages say it.
+WANT = "arrays 'vertices' (T, V, 3) and 'faces' (F, 3), or 'points' (T, N, 3)"
+
 
 def error(inputs) -> str:
     """The one-line message of ``read_frames(inputs)``, after ``read_frames(): ``."""
@@ -31,22 +34,39 @@ def test_shared_npz_sequence():
     assert frame.vertices.shape == (290, 3) and frame.faces.shape == (576, 3)
 
 
+def test_an_npz_of_one_cloud_is_one_frame_and_of_clouds_in_correspondence_a_sequence(tmp_path):
+    """D-FAUST's frames (points (N, 3), loc, scale) are single clouds; points (T, N, 3) are frames whose
+    point k is the same material point in every frame."""
+    P = np.random.default_rng(0).normal(size=(50, 3))
+    np.savez(tmp_path / "cloud.npz", points=P.astype(np.float16), loc=np.array([1.0, 2.0, 3.0]), scale=np.array(2.0))
+    frames = io.read_frames([tmp_path / "cloud.npz"])
+    assert len(frames) == 1 and not frames[0].correspondence
+    np.testing.assert_allclose(frames[0]().vertices, P.astype(np.float16) * 2.0 + [1, 2, 3])
+    np.savez(tmp_path / "clouds.npz", points=np.stack([P, P + 1.0]))
+    frames = io.read_frames([tmp_path / "clouds.npz"])
+    assert len(frames) == 2 and all(f.correspondence for f in frames)
+    frame = frames[1]()
+    assert frame.name == "clouds[1]" and frame.faces is None
+    np.testing.assert_array_equal(frame.vertices, P + 1.0)
+    np.savez(tmp_path / "two.npz", points=np.zeros((3, 2, 3)))
+    assert error([tmp_path / "two.npz"]) == (
+        f"expected 'points' of shape (T, N, 3) with T > 0 and N >= 3 in '{tmp_path / 'two.npz'}', "
+        "got points of shape (3, 2, 3)")
+    np.savez(tmp_path / "nan.npz", points=np.full((2, 4, 3), np.nan))
+    assert error([tmp_path / "nan.npz"]) == f"expected finite points in '{tmp_path / 'nan.npz'}', got 8 non-finite"
+
+
 def test_npz_without_the_sequence_arrays(tmp_path):
-    P = np.zeros((5, 3))
-    np.savez(tmp_path / "cloud.npz", points=P, normals=P)
-    assert error([tmp_path / "cloud.npz"]) == (
-        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'cloud.npz'}', "
-        "got arrays ['normals', 'points']")
     np.savez(tmp_path / "novert.npz", faces=np.zeros((1, 3), int))
     assert error([tmp_path / "novert.npz"]) == (
-        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'novert.npz'}', got arrays ['faces']")
+        f"expected {WANT} in '{tmp_path / 'novert.npz'}', got arrays ['faces']")
     np.savez(tmp_path / "flat.npz", vertices=np.zeros((4, 3)), faces=np.zeros((1, 3), int))
     assert error([tmp_path / "flat.npz"]) == (
-        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'flat.npz'}', with T > 0, "
+        f"expected {WANT} in '{tmp_path / 'flat.npz'}', with T > 0, "
         "got vertices of shape (4, 3)")
     np.savez(tmp_path / "quads.npz", vertices=np.zeros((2, 4, 3)), faces=np.zeros((1, 4), int))
     assert error([tmp_path / "quads.npz"]) == (
-        f"expected arrays 'vertices' (T, V, 3) and 'faces' (F, 3) in '{tmp_path / 'quads.npz'}', "
+        f"expected {WANT} in '{tmp_path / 'quads.npz'}', "
         "got faces of shape (1, 4) and dtype int64")
     (tmp_path / "bad.npz").write_bytes(b"not a zip file")
     assert error([tmp_path / "bad.npz"]).startswith(f"expected a readable NPZ file '{tmp_path / 'bad.npz'}', got ")
