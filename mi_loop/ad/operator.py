@@ -118,6 +118,12 @@ class LimitOperator:
         idx, W = self._rows[derivative]
         return (padded_to_csr(idx, W, self._n_level) @ self._S).tocsr()
 
+    def positions_matrix(self) -> sp.csr_matrix:
+        """:meth:`matrix` of positions, built at the first call and kept (Gauss-Newton matrices, step guards)."""
+        if getattr(self, "_positions_csr", None) is None:
+            self._positions_csr = self.matrix()
+        return self._positions_csr
+
     # -- Dr.Jit ---------------------------------------------------------------
     def _dev(self):
         if self._device is None:

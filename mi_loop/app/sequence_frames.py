@@ -108,6 +108,7 @@ class FrameFitter:
 
         o, n = run.options, len(run.x)
         self.run, self.photo, self.albedo_opt, self.saved_lighting = run, None, None, None
+        self.previous_views = None         # the last frame's photos (the optical-flow term)
         photos = bool(run.sources.captures)
         if photos and o.image:
             self._albedo(saved)
@@ -121,6 +122,8 @@ class FrameFitter:
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
         terms = (["IMLS", "coverage"] if o.cover > 0 else ["IMLS"]) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
+        if o.image and photos and o.flow > 0:
+            terms += ["optical flow"]
         if o.image:
             terms += [f"photos ({len(run.sources.captures)} captures)" if photos
                       else f"image ({o.mode}, {o.views} views)"]
@@ -152,6 +155,15 @@ class FrameFitter:
             from mi_loop.render.images import ImageRenderer
 
             views = read_views(run.sources.captures[t], t, frame)
+            flow = None
+            if o.flow > 0 and t > 0:             # the previous frame's photos, camera by camera
+                if self.previous_views is None:      # after a resume
+                    from mi_loop.io.capture import read_capture
+
+                    self.previous_views = list(read_capture(run.sources.captures[t - 1]).views)
+                if len(self.previous_views) == len(views):
+                    flow = (self.previous_views, views)
+            self.previous_views = views
             if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
                 self.photo = ImageRenderer(run.norm.inverse(run.x), run.F, views, run.lights, albedo=run.albedo,
                                            level=o.level, spp=o.spp, deterministic=o.deterministic,
@@ -160,7 +172,7 @@ class FrameFitter:
             pixel = sequence.pixel_size(self.photo.cameras, run.norm.centre, run.norm.scale)
             return sequence.FrameImages(self.photo, run.albedo, lr, self.albedo_opt,
                                         (run.norm.scale, run.norm.centre), pixel, light_lr=o.light_lr,
-                                        exposure=o.exposure)
+                                        exposure=o.exposure, flow=flow)
         if self.rig is not None and frame.mesh is not None:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
@@ -263,7 +275,10 @@ def fit_frames(run: SequenceRun, first, fitter: FrameFitter, log) -> list:
     """
     o = run.options
     paths, todo = [], list(range(run.done + 1, len(run.reader)))
-    steps = [o.first_iterations if t == 0 else o.iterations for t in todo]
+    if o.solver == "gauss-newton":
+        steps = [3 * o.gn_iterations if t == 0 else o.gn_iterations for t in todo]
+    else:
+        steps = [o.first_iterations if t == 0 else o.iterations for t in todo]
     with log.bar("fit-sequence") as update:
         for k, t in enumerate(todo):
             t0 = time.perf_counter()
@@ -294,7 +309,7 @@ def _orient(run: SequenceRun, P, N):
 
 def _frame_metrics(run: SequenceRun, t: int, V, frame, N):
     """``(distances, flipped %, drift or None, limit mesh)`` of frame ``t``'s fit ``V`` (unit box)."""
-    from mi_loop.metrics import attach, drift, flipped_fraction, two_sided
+    from mi_loop.metrics import attach, attach_points, drift, flipped_fraction, two_sided
     from mi_loop.subdiv.masks import limit_mesh, limit_positions
 
     V_world = run.norm.inverse(V)
@@ -302,13 +317,13 @@ def _frame_metrics(run: SequenceRun, t: int, V, frame, N):
     clean = None
     if run.sources.reference is not None:
         ref = run.sources.reference[t]()
-        clean = (ref.vertices, ref.faces)
-    mesh = clean if clean is not None else frame.mesh
+        clean = (ref.vertices, ref.faces)            # faces None: points in correspondence
+    mesh = clean if clean is not None and clean[1] is not None else frame.mesh
     if mesh is not None:
         m = two_sided(limit[0], limit[1], mesh[0], mesh[1], n_samples=30_000)
         flipped = flipped_fraction(limit[0], limit[1], mesh[0], mesh[1])
-    else:
-        m = two_sided(limit[0], limit[1], frame.P, n_samples=30_000)
+    else:            # points: the reference's where there is one (a partial frame is measured against all of it)
+        m = two_sided(limit[0], limit[1], frame.P if clean is None else clean[0], n_samples=30_000)
         flipped = flipped_fraction(limit[0], limit[1], frame.P, N_target=N)
     d = None
     if clean is not None:
@@ -319,7 +334,8 @@ def _frame_metrics(run: SequenceRun, t: int, V, frame, N):
                 return m, 100 * flipped, None, limit
             L0 = L if t == 0 else limit_positions(run.norm.inverse(runs.read_state(first).x), run.F)
             ref0 = run.sources.reference[0]()
-            run.attachment = attach(L0, ref0.vertices, ref0.faces)
+            run.attachment = (attach_points(L0, ref0.vertices) if ref0.faces is None
+                              else attach(L0, ref0.vertices, ref0.faces))
         d = drift(L, run.attachment, clean[0])
     return m, 100 * flipped, d, limit
 

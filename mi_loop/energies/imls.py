@@ -220,6 +220,27 @@ class IMLS:
         num, den = dr.block_sum(term, K), dr.block_sum(phi, K)
         return dr.select(den > 0, num / dr.select(den > 0, den, 1.0), 0.0)
 
+    def gradients(self, Q) -> np.ndarray:
+        """``grad f(Q_j)`` at every sample (lists and radii of the last :meth:`update` held), ``(k, 3)`` NumPy.
+
+        Parameters
+        ----------
+        Q : (k, 3) float NumPy array
+            Samples, as many as at the last update.
+
+        Returns
+        -------
+        (k, 3) float64 NumPy array
+            Zero where a sample has no neighbour.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        q = upload_vec(mi.Point3f, np.asarray(Q, dtype=np.float64))
+        dr.enable_grad(q)
+        dr.backward(dr.sum(self.values(q)))          # f_j depends on Q_j alone
+        return np.array(dr.grad(q), dtype=np.float64).T
+
     def energy(self, Q, reduce: str = "sum"):
         """Fitting energy ``E = sum_j f(Q_j)^2`` (thesis eq. 11), or its mean over samples.
 

@@ -11,7 +11,8 @@ One iteration:
 1. each parameter's point-space value (``x`` = ``P(u)`` for a smooth
    parameterisation) becomes a leaf with gradients (:class:`State`);
 2. when the :class:`Refresh` rule says so, every term rebuilds what depends on
-   the iterate (neighbour lists, reference normals, image weights);
+   the iterate (neighbour lists, reference normals, image weights), and an
+   optimiser that steps by a matrix gets the terms' Gauss-Newton matrix;
 3. the energy terms' values are summed into one Dr.Jit expression and
    differentiated in one reverse pass;
 4. the render terms that are due compute their gradients by their own reverse
@@ -20,7 +21,8 @@ One iteration:
 5. the :class:`Convergence` test may stop the loop, or halve the step and go
    back to the best iterate;
 6. each parameter's optimiser steps along its gradient, pulled back through
-   its parameterisation, with the step size of its schedule.
+   its parameterisation, with the step size of its schedule; a guard may
+   shorten the step (one that would fold the surface).
 
 No file I/O, no host copies of gradients: gradients stay Dr.Jit arrays from
 the reverse pass to the optimiser.
@@ -56,6 +58,10 @@ class Parameter:
         ``points = parameterisation.to_points(value)``; None: the identity.
     bounds : (float, float) or None
         Each step is clipped to these (an albedo in [0, 1]).
+    guard : callable or None
+        ``guard(old, new)`` returns the step actually taken, possibly shortened
+        (:class:`~mi_loop.fitting.guard.FoldGuard`: no step folds the surface);
+        only without a parameterisation.
     """
 
     value: object
@@ -63,6 +69,7 @@ class Parameter:
     schedule: Schedule
     parameterisation: object = None
     bounds: tuple | None = None
+    guard: object = None
 
     def points(self):
         """The point-space value (detached)."""
@@ -82,6 +89,8 @@ class Parameter:
         if self.bounds is not None:
             value = dr.clip(value, *self.bounds)
             dr.eval(value)
+        if self.guard is not None and self.parameterisation is None:
+            value = self.guard(dr.detach(self.value), value)
         self.value = value
 
 
@@ -294,6 +303,7 @@ class _Run:
         if due:
             for t in self.render_terms:
                 t.refresh(state)
+            self._hessians(state)
             self.refresh.done(state)
         E = contributions[0] if contributions else mi.Float(0.0)
         for c in contributions[1:]:
@@ -310,6 +320,21 @@ class _Run:
             dr.backward(E)
         state.grads = {k: dr.grad(state.values[k]) for k in self.wrt}
         return values
+
+    def _hessians(self, state) -> None:
+        """Hand each optimiser that steps by a matrix (:class:`~mi_loop.fitting.optimisers.GaussNewton`)
+        the sum of the energy terms' Gauss-Newton matrices at this iterate."""
+        for name, p in self.params.items():
+            if not getattr(p.optimiser, "needs_hessian", False):
+                continue
+            H = None
+            for t in self.energy_terms:
+                h = t.hessian(state) if name in t.wrt else None
+                if h is not None:
+                    H = h if H is None else H + h
+            if H is None:
+                fail("optimise", f"a term with a Gauss-Newton matrix for '{name}' (its optimiser needs one)", "none")
+            p.optimiser.set_hessian(H)
 
     def gradients(self, state) -> dict:
         """The energy gradients plus the render terms' (fresh where due, reused otherwise)."""

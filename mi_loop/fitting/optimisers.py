@@ -8,9 +8,10 @@ state continues bit for bit. The step size is not the optimiser's business
 either: a :class:`Schedule` gives it per iteration (and the loop's
 convergence test may halve it).
 
-A second solver (Gauss-Newton, L-BFGS) plugs in the same way: an object with
-``step(value, grad, lr)``, ``reset()``, ``state_dict()`` and
-``load_state_dict()``.
+:class:`GaussNewton` is the second solver and plugs in the same way (an
+object with ``step(value, grad, lr)``, ``reset()``, ``state_dict()`` and
+``load_state_dict()``); it also says ``needs_hessian``, and the loop hands it
+the terms' Gauss-Newton matrix at every refresh (:meth:`GaussNewton.set_hessian`).
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["Adam", "Constant", "Exponential", "Schedule"]
+__all__ = ["Adam", "Constant", "Exponential", "GaussNewton", "Schedule"]
 
 
 class Adam:
@@ -147,6 +148,129 @@ class Adam:
             self.v = mi.Float(np.asarray(state["v"], dtype=np.float32).ravel())
         else:
             self.m = self.v = None
+
+
+class GaussNewton:
+    r"""Gauss-Newton steps ``x - lr (H + mu D)^-1 g`` on the control points, ``H`` from the terms.
+
+    ``H`` is the sum of the energy terms' Gauss-Newton matrices (``2 J^T J``
+    of their residuals, :meth:`mi_loop.fitting.terms.Term.hessian`) at the
+    loop's last refresh, with the neighbour lists of that refresh: the steps
+    follow the energy's curvature. A direction that no term's residual moves
+    (sliding along the surface where only ARAP holds the points) is as stiff
+    as ARAP makes it, so a small gradient there gives a small step; Adam,
+    which divides each coordinate's step by its own gradient's size, gives it
+    a full one. Terms without a matrix (barriers, renders) have their
+    gradients preconditioned by the others' (a Sobolev step through ``H``).
+
+    Parameters
+    ----------
+    damping : float
+        ``mu`` relative to the mean diagonal of ``H`` (Levenberg's damping:
+        ``H`` is only positive semi-definite), > 0.
+    metric : SciPy sparse matrix, optional
+        ``D`` of the damping ``mu D`` instead of the identity, symmetric
+        positive definite (e.g. ``(I + L) (x) I_3``: rough steps damped more than smooth ones).
+
+    Notes
+    -----
+    ``H`` is factorised once per refresh (Cholesky in float64, cholespy, on
+    the host) and each step is two triangular solves in a fixed order, so
+    steps are bit-identical run to run. The optimiser keeps no moments: its
+    state is the step count alone.
+
+    Examples
+    --------
+    >>> import mitsuba as mi, mi_loop, scipy.sparse as sp
+    >>> mi_loop.set_variant("llvm_ad_rgb")
+    >>> opt = GaussNewton(damping=1e-12)
+    >>> opt.set_hessian(sp.diags([2.0, 2.0, 2.0, 8.0, 8.0, 8.0]))    # E = |x|^2 + 4 |y|^2
+    >>> x = opt.step(mi.Float([1, 1, 1, 1, 1, 1]), mi.Float([2, 2, 2, 8, 8, 8]), lr=1.0)
+    >>> [round(v, 6) for v in x.numpy().tolist()]
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    """
+
+    needs_hessian = True
+
+    def __init__(self, *, damping: float = 1e-4, metric=None):
+        import scipy.sparse as sp
+
+        if not (isinstance(damping, (int, float)) and math.isfinite(damping) and damping > 0):
+            fail("GaussNewton", "a finite damping > 0", damping)
+        self.damping = float(damping)
+        self.metric = None if metric is None else sp.csr_matrix(metric, dtype=np.float64)
+        self.H, self._solver, self.t = None, None, 0
+
+    def reset(self) -> None:
+        """Nothing to forget but the step count (the matrix stays until the next refresh)."""
+        self.t = 0
+
+    def set_hessian(self, H) -> None:
+        """The matrix of the next steps: ``(3n, 3n)`` SciPy sparse, symmetric positive semi-definite."""
+        import scipy.sparse as sp
+
+        H = sp.csr_matrix(H, dtype=np.float64)
+        if H.shape[0] != H.shape[1] or not np.isfinite(H.data).all():
+            fail("GaussNewton.set_hessian", "a finite square matrix", f"shape {H.shape}")
+        self.H, self._solver = H, None
+
+    def _factor(self):
+        import scipy.sparse as sp
+        from cholespy import CholeskySolverD, MatrixType
+
+        d = self.H.diagonal()
+        mu = self.damping * max(float(d.mean()), 1e-30)
+        D = sp.identity(self.H.shape[0]) if self.metric is None else self.metric
+        M = (self.H + D * mu).tocoo()
+        self._solver = CholeskySolverD(M.shape[0], M.row.astype(np.int32), M.col.astype(np.int32),
+                                       M.data.astype(np.float64), MatrixType.COO)
+
+    def step(self, value, grad, lr: float):
+        """Return ``value - lr (H + mu D)^-1 grad`` (detached, evaluated).
+
+        Parameters
+        ----------
+        value, grad : mi.Float (k)
+            Current value and its gradient, ``k`` the size of the matrix.
+        lr : float
+            Step size, > 0 (1: the full Gauss-Newton step).
+
+        Returns
+        -------
+        mi.Float (k)
+
+        Raises
+        ------
+        ValueError
+            No matrix yet (the loop sets one at its first refresh), or another width than the matrix's.
+        """
+        import drjit as dr
+
+        if self.H is None:
+            fail("GaussNewton.step", "a matrix (set_hessian) before the first step", "none")
+        g = np.array(dr.detach(grad), dtype=np.float64)
+        if len(g) != self.H.shape[0] or dr.width(value) != len(g):
+            fail("GaussNewton.step", f"a value and a gradient of width {self.H.shape[0]}",
+                 f"{dr.width(value)} and {len(g)}")
+        if self._solver is None:
+            self._factor()
+        d = np.zeros_like(g)
+        self._solver.solve(g, d)
+        x = np.array(dr.detach(value), dtype=np.float64) - float(lr) * d
+        self.t += 1
+        out = type(value)(x.astype(np.float32))
+        dr.eval(out)
+        return out
+
+    def state_dict(self) -> dict:
+        """``{'t': steps}``: the matrix is rebuilt from the iterate at the next refresh."""
+        return {"t": int(self.t)}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a :meth:`state_dict`."""
+        if "t" not in state:
+            fail("GaussNewton.load_state_dict", "a state with 't'", sorted(state))
+        self.t = int(np.asarray(state["t"]))
 
 
 class Schedule:

@@ -39,7 +39,7 @@ from mi_loop.fitting.declarations import (
 from mi_loop.render.images import INTEGRATORS, LOSSES
 from mi_loop.render.scene import RIG_MODES
 
-__all__ = ["COVER", "IMAGE_INITS", "LIGHTINGS", "N_VERTICES", "SAMPLES", "SAMPLE_MODES", "FitOptions",
+__all__ = ["COVER", "IMAGE_INITS", "LIGHTINGS", "N_VERTICES", "SAMPLES", "SAMPLE_MODES", "SOLVERS", "FitOptions",
            "ImageFitOptions", "SequenceOptions"]
 
 #: Limit samples of the geometric terms: one per control vertex, a level-1 tessellation, random.
@@ -48,6 +48,8 @@ SAMPLE_MODES = ("vertices", "level1", "random")
 IMAGE_INITS = ("hull", "sphere")
 #: How the photos' surface is lit: by the emitters given, or by a lighting estimated (:mod:`mi_loop.render.lighting`).
 LIGHTINGS = ("given", "sh")
+#: Frame solvers of fit-sequence (:mod:`mi_loop.fitting.optimisers`).
+SOLVERS = ("gauss-newton", "adam")
 LIGHTING_HELP = ("light the surface with the --emitters (given, default) or estimate the lighting: spherical "
                  "harmonics of bands 0-2 (sh)")
 EXPOSURE_HELP = "with --lighting sh, no RGB gain per photo (exposure and white balance are estimated by default)"
@@ -235,6 +237,13 @@ class SequenceOptions:
     tolerance : float
         Relative improvement of the frame's energy below which a frame stops
         before ``iterations``; 0 (default): every frame runs all its iterations.
+    flow : float
+        With photos: weight of the optical-flow term (:mod:`mi_loop.fitting.flow`); 0: off.
+    solver : {'gauss-newton', 'adam'}
+        Frame solver: Gauss-Newton steps through the terms' curvature
+        (:class:`~mi_loop.fitting.optimisers.GaussNewton`), or Adam.
+    gn_iterations : int
+        Gauss-Newton steps of each frame after the first (the first takes 3 times as many).
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -314,6 +323,16 @@ class SequenceOptions:
     tolerance: float = option(0.0, rule=WEIGHT,
                               help="relative improvement of the frame's energy below which a frame stops before "
                                    "--iterations (default %(default)s: every frame runs all its iterations)")
+    flow: float = option(0.0, rule=WEIGHT,
+                         help="with --images: weight of the optical-flow term, which pulls the limit surface's "
+                              "samples onto the pixels the flow between a camera's photos of consecutive frames "
+                              "carried them to (default %(default)s: off)")
+    solver: str = option("adam", rule=one_of(SOLVERS),
+                         help="frame solver: Gauss-Newton steps through the terms' curvature (gauss-newton), or "
+                              "Adam (adam, default)")
+    gn_iterations: int = option(12, rule=COUNT, metavar="N",
+                                help="Gauss-Newton steps of each frame after the first (default %(default)s; the "
+                                     "first frame takes 3 times as many)")
 
     def __post_init__(self):
         check_fields(self)

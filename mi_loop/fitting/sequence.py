@@ -64,6 +64,11 @@ __all__ = ["MIN_IMAGE_WEIGHT", "FrameImages", "ImageBalance", "Rig", "SequenceOp
 
 #: A mesh frame's renders are skipped when their weight ``beta w`` (relative to the geometric gradient) is below.
 MIN_IMAGE_WEIGHT = 0.01
+#: Gauss-Newton steps between refreshes of the neighbour lists and of the matrix.
+GN_REFRESH = 2
+#: Levenberg damping of the Gauss-Newton steps, relative to the matrix's mean diagonal, in the metric
+#: ``(I + L) (x) I_3`` (``L`` the cage's graph Laplacian): rough steps are damped more than smooth ones.
+GN_DAMPING = 1e-3
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
     """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
@@ -153,6 +158,9 @@ class FrameImages:
         one) in this frame; 0: kept as it is.
     exposure : bool
         Estimate the photos' gains too (with ``light_lr``).
+    flow : (list of View, list of View) or None
+        The photos of the previous frame and of this one, camera by camera:
+        the optical-flow term's (``options.flow``, :mod:`mi_loop.fitting.flow`); None: no such term.
     """
 
     renderer: object
@@ -163,6 +171,7 @@ class FrameImages:
     pixel: float = 1.0
     light_lr: float = 0.0
     exposure: bool = True
+    flow: tuple | None = None
 
 
 class Rig:
@@ -374,21 +383,26 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     """
     import drjit as dr
     import mitsuba as mi
+    import scipy.sparse as sp
 
+    from mi_loop.ad.smoothing import smoothing_matrix
     from mi_loop.energies.arap import ARAP
     from mi_loop.energies.coverage import Coverage
     from mi_loop.energies.imls import IMLS
     from mi_loop.fitting import terms
+    from mi_loop.fitting.guard import FoldGuard
     from mi_loop.fitting.loop import Parameter, optimise
-    from mi_loop.fitting.optimisers import Adam, Constant
+    from mi_loop.fitting.optimisers import Adam, Constant, GaussNewton
     from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
 
     n = len(x0)
-    n_it = int(iterations or options.iterations)
+    gauss_newton = options.solver == "gauss-newton"
+    n_it = int(iterations or (options.gn_iterations if gauss_newton else options.iterations))
     failure = Failure("fit_frame", context=f"frame {frame}, ")
     x = mi.Float(np.asarray(x0, dtype=np.float32).ravel())
-    parts = [terms.Rigidity(ARAP(x0, F), options.alpha / n,       # rest = the previous frame's fit
-                            stiff=(options.stiff_factor, n_it // 2) if options.stiff_factor > 1 else None)]
+    # rest = the previous frame's fit; Adam's first half is stiff (Gauss-Newton needs no such start)
+    stiff = (options.stiff_factor, n_it // 2) if options.stiff_factor > 1 and not gauss_newton else None
+    parts = [terms.Rigidity(ARAP(x0, F), options.alpha / n, stiff=stiff)]
     if rest is not None and options.alpha_rest > 0:
         parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None
@@ -411,9 +425,18 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
             raise failure.error(0, {"imls": e0})
         lr = float(np.clip(np.sqrt(e0) / 3.0, 1e-2 * lr, lr))
     seeds = Seeds(options.seed).child(frame)
-    params = {"x": Parameter(x, Adam(), Constant(lr))}
+    guard = None
+    if op.derivatives:       # no step turns a control triangle over or flips a limit normal (against the last frame's)
+        guard = FoldGuard(op, F, x0 if rest is None else rest, np.array(normals0, dtype=np.float64).T)
+    if gauss_newton:
+        metric = sp.kron(smoothing_matrix(F, n, 1.0), sp.identity(3), format="csr")
+        params = {"x": Parameter(x, GaussNewton(damping=GN_DAMPING, metric=metric), Constant(1.0), guard=guard)}
+    else:
+        params = {"x": Parameter(x, Adam(), Constant(lr), guard=guard)}
+    if images is not None and images.flow is not None and options.flow > 0 and options.image:
+        parts.append(_flow_term(op, x0, F, images, options.flow))
     balance, extra = _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts)
-    result = optimise(params, parts, iterations=n_it, seeds=seeds, refresh=Refresh(10),
+    result = optimise(params, parts, iterations=n_it, seeds=seeds, refresh=Refresh(GN_REFRESH if gauss_newton else 10),
                       convergence=Convergence(options.tolerance), failure=failure,
                       progress=None if progress is None else (lambda i, total, _: progress(i, total)))
     h = result.history
@@ -426,6 +449,22 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     if images is not None and getattr(images.renderer, "lighting", None) is not None:
         terms.keep_lighting(images.renderer.lighting, result.values)     # kept by the renderer for the next frame
     return result.values["x"], info
+
+
+def _flow_term(op, x0, F, images, weight: float):
+    """The optical-flow term of a frame: the previous fit's samples, where the flow carried them (photos' units)."""
+    import mitsuba as mi
+
+    from mi_loop.fitting import terms
+    from mi_loop.fitting.flow import flow_correspondences
+    from mi_loop.subdiv.masks import limit_mesh
+
+    scale, centre = images.to_world if images.to_world is not None else (1.0, np.zeros(3))
+    x = mi.Float(np.asarray(x0, dtype=np.float32).ravel())
+    Q, N = (np.array(a, dtype=np.float64).T for a in op.positions_normals(x))
+    surface = limit_mesh(np.asarray(x0, dtype=np.float64) * scale + centre, F, level=2)[0]
+    corr = flow_correspondences(*images.flow, Q * scale + centre, N, surface)
+    return terms.Flow(op, corr, weight, (scale, centre), images.pixel)
 
 
 def _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts):

@@ -15,15 +15,16 @@ A term has a ``name`` (its key in the loop's history), a ``kind`` and a
 
 Geometric terms here: :class:`Distance` (IMLS), :class:`Coverage`,
 :class:`Rigidity` (ARAP), :class:`Fold` (barrier on turned limit normals),
-:class:`CageLaplacian`; the image term, :class:`ImageTerm`, renders the limit
+:class:`CageLaplacian`, :class:`Flow` (samples onto the pixels optical flow
+carried them to); the image term, :class:`ImageTerm`, renders the limit
 surface against photos or rendered targets.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CageLaplacian", "Coverage", "Distance", "Fold", "ImageTerm", "Rigidity", "Term", "keep_lighting",
-           "lighting_parameters"]
+__all__ = ["CageLaplacian", "Coverage", "Distance", "Flow", "Fold", "ImageTerm", "Rigidity", "Term", "block_gram",
+           "keep_lighting", "lighting_parameters"]
 
 
 class Term:
@@ -40,6 +41,50 @@ class Term:
     def energy(self, state):
         """The weighted energy, ``mi.Float (1)``, differentiable with respect to ``state.values``."""
         raise NotImplementedError
+
+    def hessian(self, state):
+        """Gauss-Newton matrix of the weighted energy in the control points, ``(3n, 3n)`` SciPy sparse
+        (``2 J^T J`` of its residuals, xyz interleaved), or None: the term has none, and a Gauss-Newton
+        solver preconditions its gradient by the other terms' (:class:`~mi_loop.fitting.optimisers.GaussNewton`)."""
+        return None
+
+
+def block_gram(W, B):
+    """``sum_j W_j^T B_j W_j`` over samples ``j``: the Gauss-Newton matrix of residuals of limit samples.
+
+    Parameters
+    ----------
+    W : (s, n) SciPy sparse matrix
+        Limit rows of the samples (:meth:`~mi_loop.ad.operator.LimitOperator.matrix`).
+    B : (s, 3, 3) float NumPy array
+        Symmetric 3x3 weight of each sample (``g_j g_j^T`` for a residual ``g_j . Q_j``).
+
+    Returns
+    -------
+    (3n, 3n) scipy.sparse.csr_matrix
+        xyz interleaved (coordinate ``d`` of control point ``a`` at ``3 a + d``).
+
+    Examples
+    --------
+    >>> import scipy.sparse as sp
+    >>> W = sp.csr_matrix([[0.5, 0.5]]); B = np.diag([1.0, 0.0, 0.0])[None]
+    >>> (block_gram(W, B).toarray()[[0, 3]][:, [0, 3]] * 4).tolist()
+    [[1.0, 1.0], [1.0, 1.0]]
+    """
+    import scipy.sparse as sp
+
+    W = sp.csr_matrix(W, dtype=np.float64)
+    n = W.shape[1]
+    rows, cols, vals = [], [], []
+    for d in range(3):
+        for e in range(d, 3):
+            M = (W.T @ sp.diags(B[:, d, e]) @ W).tocoo()
+            pairs = ((d, e),) if d == e else ((d, e), (e, d))
+            for a, b in pairs:
+                rows.append(3 * M.row + a)
+                cols.append(3 * M.col + b)
+                vals.append(M.data)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
 
 
 class Distance(Term):
@@ -67,6 +112,11 @@ class Distance(Term):
     def energy(self, state):
         return self.imls.energy(state.evaluate(self.op), reduce="mean")
 
+    def hessian(self, state):
+        """``(2/s) sum_j W_j^T g_j g_j^T W_j``, ``g_j`` the IMLS gradient at sample ``j`` (point-to-plane)."""
+        G = self.imls.gradients(state.host(self.op, "positions"))
+        return (2.0 / len(G)) * block_gram(self.op.positions_matrix(), G[:, :, None] * G[:, None, :])
+
 
 class Coverage(Term):
     """``weight E_cover``: data points pull their nearest samples (:class:`~mi_loop.energies.coverage.Coverage`).
@@ -92,6 +142,16 @@ class Coverage(Term):
 
     def energy(self, state):
         return self.weight * self.coverage.energy(state.evaluate(self.op))
+
+    def hessian(self, state):
+        """``2 weight sum_i w_i W_j(i)^T n_i n_i^T W_j(i)``: each data point's normal at its nearest sample."""
+        c = self.coverage
+        w = c.weight / c.weight.sum()
+        B = np.zeros((c.n_samples, 3, 3))
+        for d in range(3):
+            for e in range(3):
+                B[:, d, e] = np.bincount(c.nearest, w * c.normals[:, d] * c.normals[:, e], minlength=c.n_samples)
+        return (2.0 * self.weight) * block_gram(self.op.positions_matrix(), B)
 
 
 class Rigidity(Term):
@@ -123,6 +183,16 @@ class Rigidity(Term):
         if self.stiff is not None and state.it < self.stiff[1]:
             w = w * self.stiff[0]
         return w * self.arap.energy(state.x, self.arap.rotations(state.numpy("x")))
+
+    def hessian(self, state):
+        """``2 weight (L (x) I_3)``, ``L = sum_ij w_ij (e_i - e_j)(e_i - e_j)^T`` (rotations held)."""
+        import scipy.sparse as sp
+
+        a = self.arap
+        w = float(self._w[0]) * (self.stiff[0] if self.stiff is not None and state.it < self.stiff[1] else 1.0)
+        L = sp.csr_matrix((np.r_[a.w, -a.w], (np.r_[a.I, a.I], np.r_[a.I, a.J])), shape=(a.n, a.n))
+        L = L + L.T
+        return (2.0 * w) * sp.kron(L, sp.identity(3), format="csr")
 
 
 class Fold(Term):
@@ -177,6 +247,76 @@ class Fold(Term):
         if self._what == "positions_normals":
             n = n[1]
         return self.weight * fold_energy(n, self.reference, self.cosine)
+
+
+class Flow(Term):
+    """``weight mean_k |pi_k(Q_s(k)) - p_k|^2 pixel^2``: limit samples onto the pixels optical flow carried them to.
+
+    Parameters
+    ----------
+    op : LimitOperator
+        The samples (those of :func:`~mi_loop.fitting.flow.flow_correspondences`).
+    correspondences : mi_loop.fitting.flow.Correspondences
+        Sample, camera and target pixel of each correspondence.
+    weight : float
+    to_world : (float, (3,) array)
+        ``(scale, centre)`` from the fit's unit box to the cameras' units.
+    pixel : float
+        Width of one pixel at the subject, in the fit's units: the residual is in the fit's units.
+    """
+
+    name = "flow"
+
+    def __init__(self, op, correspondences, weight: float, to_world, pixel: float):
+        import mitsuba as mi
+
+        from mi_loop.ad.sparse import IndexMap
+        from mi_loop.ad.upload import upload_float, upload_vec
+
+        c = correspondences
+        self.op, self.c, self.weight, self.pixel = op, c, float(weight), float(pixel)
+        self.scale, self.centre = float(to_world[0]), np.asarray(to_world[1], dtype=np.float64)
+        w2c = np.stack([np.linalg.inv(cam.c2w) for cam in c.cameras])[c.camera]          # (k, 4, 4)
+        self._w2c = w2c
+        self._rows = [upload_vec(mi.Vector3f, w2c[:, r, :3]) for r in range(3)]
+        self._t = [upload_float(w2c[:, r, 3]) for r in range(3)]
+        f = np.array([[cam.fx, cam.fy, cam.cx, cam.cy] for cam in c.cameras])[c.camera]
+        self._f = [upload_float(f[:, i]) for i in range(4)]
+        self._target = [upload_float(c.target[:, i]) for i in range(2)]
+        self._gather = IndexMap(c.sample, op.n_samples)
+        self._centre = mi.Point3f(*(float(v) for v in self.centre))
+
+    def energy(self, state):
+        import drjit as dr
+        import mitsuba as mi
+
+        if len(self.c.sample) == 0:
+            return mi.Float(0.0)
+        X = self._gather(state.evaluate(self.op)) * self.scale + self._centre
+        x, y, z = (dr.dot(self._rows[r], mi.Vector3f(X)) + self._t[r] for r in range(3))
+        fx, fy, cx, cy = self._f
+        dx = (cx - fx * x / z) - self._target[0]
+        dy = (cy + fy * y / z) - self._target[1]
+        return (self.weight * self.pixel ** 2) * dr.mean(dx * dx + dy * dy)
+
+    def hessian(self, state):
+        """``(2 weight / k) sum_k W_s^T J_k^T J_k W_s``, ``J_k`` the projection's Jacobian in the fit's units."""
+        k = len(self.c.sample)
+        if k == 0:
+            return None
+        Q = state.host(self.op, "positions")[self.c.sample] * self.scale + self.centre
+        R = self._w2c[:, :3, :3]
+        Xc = np.einsum("kab,kb->ka", R, Q) + self._w2c[:, :3, 3]
+        f = np.array([[cam.fx, cam.fy] for cam in self.c.cameras])[self.c.camera]
+        x, y, z = Xc.T
+        Jc = np.zeros((k, 2, 3))
+        Jc[:, 0, 0], Jc[:, 0, 2] = -f[:, 0] / z, f[:, 0] * x / z ** 2
+        Jc[:, 1, 1], Jc[:, 1, 2] = f[:, 1] / z, -f[:, 1] * y / z ** 2
+        J = np.einsum("kab,kbc->kac", Jc, R) * (self.scale * self.pixel)
+        JtJ = np.einsum("kab,kac->kbc", J, J)
+        B = np.zeros((self.op.n_samples, 3, 3))
+        np.add.at(B, self.c.sample, JtJ)
+        return (2.0 * self.weight / k) * block_gram(self.op.positions_matrix(), B)
 
 
 class CageLaplacian(Term):
