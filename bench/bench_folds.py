@@ -13,6 +13,7 @@ Usage::
 
     .venv/bin/python bench/bench_folds.py                         # dragon_20k, bunny, fandisk, penguin; seeds 0 1
     .venv/bin/python bench/bench_folds.py --meshes dragon_20k --seeds 0
+    .venv/bin/python bench/bench_folds.py --meshes dragon_20k penguin --folds default   # the default fit only
 """
 from __future__ import annotations
 
@@ -55,6 +56,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--meshes", nargs="+", default=["dragon_20k", "bunny", "fandisk", "penguin"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--folds", nargs="+", default=["0", "default"], help="barrier weights: 0 and/or default")
     args = ap.parse_args(argv)
 
     import mi_loop
@@ -72,7 +74,7 @@ def main(argv=None) -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.meshes:
         for seed in args.seeds:
-            for fold in (0.0, None):
+            for fold in (None if f == "default" else float(f) for f in args.folds):
                 print("| " + " | ".join(run(name, fold, seed)) + " |", flush=True)
 
 

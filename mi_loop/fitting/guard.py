@@ -10,8 +10,8 @@ halved, ``old_i + s_i (new_i - old_i)``, until the step
   ARAP rotation (the sum of its three vertices' ARAP rotations to the rest
   shape, at ``old``), and
 - flips no limit normal that was not flipped before: a limit normal is
-  flipped when it points against the sample's reference normal (a sequence:
-  the previous frame's limit normal; a static fit: the data's normal).
+  flipped when it points against the sample's reference normal (in a
+  sequence: the previous frame's limit normal).
 
 The points in the way are the corners of the turned triangles and the
 control points a flipped normal depends on (its row of the limit operator).
@@ -41,13 +41,7 @@ class FoldGuard:
     rest : (n, 3) float NumPy array
         Rest shape of the control mesh (the template).
     reference : (k, 3) float NumPy array or None
-        Reference normal at every sample of ``op`` (None: no limit test until
-        :meth:`set_reference`, unless ``data``).
-    data : (cKDTree, (N, 3) NumPy array, int), optional
-        Instead of ``reference``: the data's k-d tree, unit normals and how
-        many of the nearest data normals make each sample's reference, found
-        for the samples before every step (a static fit;
-        :func:`~mi_loop.energies.fold.nearest_data_normals`).
+        Reference normal at every sample of ``op`` (None: no limit-normal test).
     halvings : int
         Most halvings of a step.
     margin : float
@@ -78,7 +72,7 @@ class FoldGuard:
     (1, True)
     """
 
-    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1, data=None):
+    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1):
         from mi_loop.energies.arap import ARAP
         from mi_loop.mesh.geometry import face_normals
 
@@ -86,13 +80,8 @@ class FoldGuard:
         self.arap = ARAP(np.asarray(rest, dtype=np.float64), self.F)
         self.rest_normals = face_normals(np.asarray(rest, dtype=np.float64), self.F)
         self.reference = None if reference is None else np.asarray(reference, dtype=np.float64)
-        self.data = data
         self.halvings, self.margin = int(halvings), float(margin)
         self.shortened = self.frozen = self.refused = 0
-
-    def set_reference(self, reference) -> None:
-        """New reference normals of the samples, ``(k, 3)`` NumPy (a static fit's refreshed data normals)."""
-        self.reference = np.asarray(reference, dtype=np.float64)
 
     def _limit_cosines(self, x):
         import drjit as dr
@@ -118,12 +107,6 @@ class FoldGuard:
         ref = np.einsum("fab,fb->fa", Rf, self.rest_normals)          # rest normals, rotated
         ref /= np.maximum(np.linalg.norm(ref, axis=1, keepdims=True), 1e-300)
         faces0 = self._face_cosines(V0, ref) > self.margin               # what the step must not turn over
-        if self.data is not None:
-            from mi_loop.energies.fold import nearest_data_normals
-
-            with dr.suspend_grad():
-                Q = np.array(self.op.positions(old), dtype=np.float64).T
-            self.reference = nearest_data_normals(*self.data[:2], Q, self.data[2])
         limit0 = self._limit_cosines(old)
         if limit0 is not None:
             limit0 = limit0 > self.margin * np.linalg.norm(self.reference, axis=1)

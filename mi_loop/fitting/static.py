@@ -353,7 +353,6 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     import mitsuba as mi
 
     from mi_loop.fitting import terms
-    from mi_loop.fitting.guard import FoldGuard
     from mi_loop.fitting.loop import Parameter, optimise
     from mi_loop.fitting.optimisers import Adam, Constant
     from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
@@ -373,10 +372,7 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     parts.append(terms.Rigidity(arap, alpha / len(V0)))
     if fold > 0:
         parts.append(terms.Fold(fold_op, fold, data=(imls.tree, imls.normals, FOLD_NEIGHBOURS), cosine=FOLD_COSINE))
-    guard = None
-    if fold > 0:        # no step turns a control triangle over or flips a limit normal against the data's
-        guard = FoldGuard(fold_op, arap.F, arap.V_rest, data=(imls.tree, imls.normals, FOLD_NEIGHBOURS))
-    result = optimise({"x": Parameter(x0, Adam(), Constant(lr), guard=guard)}, parts, iterations=options.iterations,
+    result = optimise({"x": Parameter(x0, Adam(), Constant(lr))}, parts, iterations=options.iterations,
                       seeds=Seeds(options.seed), refresh=Refresh(20, 0.25 * imls.h0, op),
                       convergence=Convergence(options.tolerance, patience=12, halvings=3, window=40),
                       failure=failure,
