@@ -171,6 +171,11 @@ class GaussNewton:
     metric : SciPy sparse matrix, optional
         ``D`` of the damping ``mu D`` instead of the identity, symmetric
         positive definite (e.g. ``(I + L) (x) I_3``: rough steps damped more than smooth ones).
+    max_step : float, optional
+        Trust region: the step of each point (3 consecutive coordinates) is
+        shortened to this length where longer. Gradients of terms without a
+        matrix (renders) where the others are flat would otherwise take
+        steps of any length.
 
     Notes
     -----
@@ -192,13 +197,17 @@ class GaussNewton:
 
     needs_hessian = True
 
-    def __init__(self, *, damping: float = 1e-4, metric=None):
+    def __init__(self, *, damping: float = 1e-4, metric=None, max_step: float | None = None):
         import scipy.sparse as sp
 
         if not (isinstance(damping, (int, float)) and math.isfinite(damping) and damping > 0):
             fail("GaussNewton", "a finite damping > 0", damping)
         self.damping = float(damping)
         self.metric = None if metric is None else sp.csr_matrix(metric, dtype=np.float64)
+        if max_step is not None and not (isinstance(max_step, (int, float)) and math.isfinite(max_step)
+                                         and max_step > 0):
+            fail("GaussNewton", "a finite max_step > 0 (or None)", max_step)
+        self.max_step = None if max_step is None else float(max_step)
         self.H, self._solver, self.t = None, None, 0
 
     def reset(self) -> None:
@@ -256,7 +265,12 @@ class GaussNewton:
             self._factor()
         d = np.zeros_like(g)
         self._solver.solve(g, d)
-        x = np.array(dr.detach(value), dtype=np.float64) - float(lr) * d
+        d *= float(lr)
+        if self.max_step is not None:         # trust region: no point moves farther than max_step in one step
+            D = d.reshape(-1, 3)
+            length = np.linalg.norm(D, axis=1)
+            D *= np.minimum(1.0, self.max_step / np.maximum(length, 1e-300))[:, None]
+        x = np.array(dr.detach(value), dtype=np.float64) - d
         self.t += 1
         out = type(value)(x.astype(np.float32))
         dr.eval(out)

@@ -69,6 +69,10 @@ GN_REFRESH = 2
 #: Levenberg damping of the Gauss-Newton steps, relative to the matrix's mean diagonal, in the metric
 #: ``(I + L) (x) I_3`` (``L`` the cage's graph Laplacian): rough steps are damped more than smooth ones.
 GN_DAMPING = 1e-3
+#: With an image term, the largest step of a control point in one Gauss-Newton step, in mean control-edge
+#: lengths (a trust region: the image gradient, which has no matrix, would otherwise be divided by ARAP's
+#: alone where the data are flat).
+GN_REACH = 0.1
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
     """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
@@ -394,6 +398,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     from mi_loop.fitting.loop import Parameter, optimise
     from mi_loop.fitting.optimisers import Adam, Constant, GaussNewton
     from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
+    from mi_loop.mesh.geometry import mean_edge_length
 
     n = len(x0)
     gauss_newton = options.solver == "gauss-newton"
@@ -430,12 +435,15 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         guard = FoldGuard(op, F, x0 if rest is None else rest, np.array(normals0, dtype=np.float64).T)
     if gauss_newton:
         metric = sp.kron(smoothing_matrix(F, n, 1.0), sp.identity(3), format="csr")
-        params = {"x": Parameter(x, GaussNewton(damping=GN_DAMPING, metric=metric), Constant(1.0), guard=guard)}
+        params = {"x": Parameter(x, GaussNewton(damping=GN_DAMPING, metric=metric), Constant(1.0),
+                                 guard=guard)}
     else:
         params = {"x": Parameter(x, Adam(), Constant(lr), guard=guard)}
     if images is not None and images.flow is not None and options.flow > 0 and options.image:
         parts.append(_flow_term(op, x0, F, images, options.flow))
     balance, extra = _image_term(images, options, F, n, imls, vertex_op, complete, seeds, params, parts)
+    if gauss_newton and balance is not None:
+        params["x"].optimiser.max_step = GN_REACH * mean_edge_length(x0, F)
     result = optimise(params, parts, iterations=n_it, seeds=seeds, refresh=Refresh(GN_REFRESH if gauss_newton else 10),
                       convergence=Convergence(options.tolerance), failure=failure,
                       progress=None if progress is None else (lambda i, total, _: progress(i, total)))

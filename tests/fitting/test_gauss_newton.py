@@ -87,6 +87,19 @@ def test_a_gauss_newton_step_lands_on_the_minimum_of_a_quadratic():
     assert opt.state_dict() == {"t": 1}
 
 
+def test_the_trust_region_shortens_only_the_points_that_would_go_farther():
+    """max_step 0.5: a point asked to move by (3, 4, 0) moves by (0.3, 0.4, 0); one asked to move 0.1 moves 0.1."""
+    import mitsuba as mi
+
+    opt = GaussNewton(damping=1e-12, max_step=0.5)
+    opt.set_hessian(sp.identity(6))
+    out = opt.step(mi.Float([0.0] * 6), mi.Float([-3.0, -4.0, 0.0, 0.1, 0.0, 0.0]), lr=1.0)
+    np.testing.assert_allclose(np.array(out), [0.3, 0.4, 0.0, -0.1, 0.0, 0.0], atol=1e-6)
+    with pytest.raises(ValueError) as e:
+        GaussNewton(max_step=-1.0)
+    assert str(e.value) == "GaussNewton(): expected a finite max_step > 0 (or None), got -1.0"
+
+
 def test_optimise_with_gauss_newton_reaches_the_sphere_in_a_few_steps():
     """From control points 30 % outside the unit sphere, 6 Gauss-Newton steps bring the limit samples within 1 %;
     6 Adam steps at the sequence's largest step (0.01) do not come near it."""
