@@ -18,7 +18,12 @@ estimated on the first frame and refined slowly after) or renders of a mesh
 frame from a rig of cameras (:class:`FrameImages`).
 
 Each frame is one run of the optimisation loop (:func:`mi_loop.fitting.loop.optimise`)
-with the terms of :mod:`mi_loop.fitting.terms`. The image term
+with the terms of :mod:`mi_loop.fitting.terms`, stepped by Adam (the default) or by
+Gauss-Newton through the terms' matrices (``options.solver``; :class:`~mi_loop.fitting.optimisers.GaussNewton`,
+its matrix rebuilt every :data:`GN_REFRESH` steps). Every step passes the fold guard
+(:class:`~mi_loop.fitting.guard.FoldGuard`): it is shortened where it would turn a control
+triangle over or flip a limit normal against the previous frame's. With photos of the
+previous frame, ``options.flow`` adds the optical-flow term (:mod:`mi_loop.fitting.flow`). The image term
 (:class:`~mi_loop.fitting.terms.ImageTerm`) acts over the whole frame. Its
 gradient is refreshed every ``options.image_every`` iterations (a render and
 its reverse pass cost ten times a geometric iteration) and added to every
