@@ -8,7 +8,7 @@ halved, ``old_i + s_i (new_i - old_i)``, until the step
 - turns over no control triangle that was not turned over before: a triangle
   is turned over when its normal points against its rest normal rotated by its
   ARAP rotation (the sum of its three vertices' ARAP rotations to the rest
-  shape, at ``old``), and
+  shape, at ``old`` or at most ``rotations_every`` steps before), and
 - flips no limit normal that was not flipped before: a limit normal is
   flipped when it points against the sample's reference normal (in a
   sequence: the previous frame's limit normal).
@@ -48,6 +48,9 @@ class FoldGuard:
         Only normals whose cosine to their reference exceeds it before the
         step are kept from turning over (a normal at 90 degrees already is
         on the edge of a fold: any step may tip it).
+    rotations_every : int
+        The triangles' ARAP rotations are those of the step this many calls
+        back at most (they turn slowly; finding them costs more than the test).
 
     Attributes
     ----------
@@ -72,7 +75,8 @@ class FoldGuard:
     (1, True)
     """
 
-    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1):
+    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1,
+                 rotations_every: int = 10):
         from mi_loop.energies.arap import ARAP
         from mi_loop.mesh.geometry import face_normals
 
@@ -81,6 +85,7 @@ class FoldGuard:
         self.rest_normals = face_normals(np.asarray(rest, dtype=np.float64), self.F)
         self.reference = None if reference is None else np.asarray(reference, dtype=np.float64)
         self.halvings, self.margin = int(halvings), float(margin)
+        self.rotations_every, self.calls, self._ref, self._last = int(rotations_every), 0, None, None
         self.shortened = self.frozen = self.refused = 0
 
     def _limit_cosines(self, x):
@@ -102,12 +107,16 @@ class FoldGuard:
         import drjit as dr
 
         V0 = np.array(old, dtype=np.float64).reshape(-1, 3)
-        R = self.arap.rotations(V0)
-        Rf = R[self.F[:, 0]] + R[self.F[:, 1]] + R[self.F[:, 2]]
-        ref = np.einsum("fab,fb->fa", Rf, self.rest_normals)          # rest normals, rotated
-        ref /= np.maximum(np.linalg.norm(ref, axis=1, keepdims=True), 1e-300)
+        if self.calls % self.rotations_every == 0:      # the ARAP rotations turn slowly: refreshed every few steps
+            R = self.arap.rotations(V0)
+            Rf = R[self.F[:, 0]] + R[self.F[:, 1]] + R[self.F[:, 2]]
+            ref = np.einsum("fab,fb->fa", Rf, self.rest_normals)          # rest normals, rotated
+            self._ref = ref / np.maximum(np.linalg.norm(ref, axis=1, keepdims=True), 1e-300)
+        self.calls += 1
+        ref = self._ref
         faces0 = self._face_cosines(V0, ref) > self.margin               # what the step must not turn over
-        limit0 = self._limit_cosines(old)
+        # the limit normals at old: those of the step taken last, if old is it
+        limit0 = self._last[1] if self._last is not None and self._last[0] is old else self._limit_cosines(old)
         if limit0 is not None:
             limit0 = limit0 > self.margin * np.linalg.norm(self.reference, axis=1)
         D = np.array(new, dtype=np.float64).reshape(-1, 3) - V0
@@ -116,14 +125,17 @@ class FoldGuard:
             x = new if k == 0 else type(old)((V0 + s[:, None] * D).astype(np.float32).ravel())
             V = np.array(x, dtype=np.float64).reshape(-1, 3)
             moved = self.F[faces0 & (self._face_cosines(V, ref) <= 0)].ravel()
+            cosines = None
             if limit0 is not None:
-                bad = np.flatnonzero(limit0 & (self._limit_cosines(x) <= 0))
+                cosines = self._limit_cosines(x)
+                bad = np.flatnonzero(limit0 & (cosines <= 0))
                 if len(bad):
                     moved = np.r_[moved, self.op.positions_matrix()[bad].indices]
             if len(moved) == 0:
                 self.shortened += k > 0
                 self.frozen += int(np.sum(s == 0))
                 dr.eval(x)
+                self._last = (x, cosines)
                 return x
             # shorten the step where it folds: the vertices of the turned triangles and the supports of the flipped
             # normals (their last halving stops them: at the old points nothing is turned over)
