@@ -8,7 +8,7 @@ halved, ``old_i + s_i (new_i - old_i)``, until the step
 - turns over no control triangle that was not turned over before: a triangle
   is turned over when its normal points against its rest normal rotated by its
   ARAP rotation (the sum of its three vertices' ARAP rotations to the rest
-  shape, at ``old`` or at most ``rotations_every`` steps before), and
+  shape, at ``old``), and
 - flips no limit normal that was not flipped before: a limit normal is
   flipped when it points against the sample's reference normal (in a
   sequence: the previous frame's limit normal).
@@ -48,9 +48,6 @@ class FoldGuard:
         Only normals whose cosine to their reference exceeds it before the
         step are kept from turning over (a normal at 90 degrees already is
         on the edge of a fold: any step may tip it).
-    rotations_every : int
-        The triangles' ARAP rotations are those of the step this many calls
-        back at most (they turn slowly; finding them costs more than the test).
 
     Attributes
     ----------
@@ -75,8 +72,7 @@ class FoldGuard:
     (1, True)
     """
 
-    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1,
-                 rotations_every: int = 10):
+    def __init__(self, op, F, rest, reference=None, halvings: int = 10, margin: float = 0.1):
         from mi_loop.energies.arap import ARAP
         from mi_loop.mesh.geometry import face_normals
 
@@ -85,7 +81,7 @@ class FoldGuard:
         self.rest_normals = face_normals(np.asarray(rest, dtype=np.float64), self.F)
         self.reference = None if reference is None else np.asarray(reference, dtype=np.float64)
         self.halvings, self.margin = int(halvings), float(margin)
-        self.rotations_every, self.calls, self._ref, self._last = int(rotations_every), 0, None, None
+        self._last = None            # the step taken last and its limit normals' cosines
         self.shortened = self.frozen = self.refused = 0
 
     def _limit_cosines(self, x):
@@ -107,13 +103,10 @@ class FoldGuard:
         import drjit as dr
 
         V0 = np.array(old, dtype=np.float64).reshape(-1, 3)
-        if self.calls % self.rotations_every == 0:      # the ARAP rotations turn slowly: refreshed every few steps
-            R = self.arap.rotations(V0)
-            Rf = R[self.F[:, 0]] + R[self.F[:, 1]] + R[self.F[:, 2]]
-            ref = np.einsum("fab,fb->fa", Rf, self.rest_normals)          # rest normals, rotated
-            self._ref = ref / np.maximum(np.linalg.norm(ref, axis=1, keepdims=True), 1e-300)
-        self.calls += 1
-        ref = self._ref
+        R = self.arap.rotations(V0)
+        Rf = R[self.F[:, 0]] + R[self.F[:, 1]] + R[self.F[:, 2]]
+        ref = np.einsum("fab,fb->fa", Rf, self.rest_normals)          # rest normals, rotated
+        ref /= np.maximum(np.linalg.norm(ref, axis=1, keepdims=True), 1e-300)
         faces0 = self._face_cosines(V0, ref) > self.margin               # what the step must not turn over
         # the limit normals at old: those of the step taken last, if old is it
         limit0 = self._last[1] if self._last is not None and self._last[0] is old else self._limit_cosines(old)
