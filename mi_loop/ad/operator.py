@@ -111,6 +111,7 @@ class LimitOperator:
         self._S = h.composed()
         self._n_level = h.top.n
         self._device = None
+        self._positions_csr = None
 
     # -- SciPy views --------------------------------------------------------
     def matrix(self, derivative=None) -> sp.csr_matrix:
@@ -120,7 +121,7 @@ class LimitOperator:
 
     def positions_matrix(self) -> sp.csr_matrix:
         """:meth:`matrix` of positions, built at the first call and kept (Gauss-Newton matrices, step guards)."""
-        if getattr(self, "_positions_csr", None) is None:
+        if self._positions_csr is None:
             self._positions_csr = self.matrix()
         return self._positions_csr
 

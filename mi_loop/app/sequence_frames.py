@@ -275,10 +275,7 @@ def fit_frames(run: SequenceRun, first, fitter: FrameFitter, log) -> list:
     """
     o = run.options
     paths, todo = [], list(range(run.done + 1, len(run.reader)))
-    if o.solver == "gauss-newton":
-        steps = [3 * o.gn_iterations if t == 0 else o.gn_iterations for t in todo]
-    else:
-        steps = [o.first_iterations if t == 0 else o.iterations for t in todo]
+    steps = [o.frame_iterations(t == 0) for t in todo]
     with log.bar("fit-sequence") as update:
         for k, t in enumerate(todo):
             t0 = time.perf_counter()

@@ -55,6 +55,8 @@ class FoldGuard:
         Steps shortened somewhere so far.
     frozen : int
         Control points kept where they were by those steps (summed over steps).
+    refused : int
+        Steps not taken at all (stopping the points in the way tipped others).
 
     Examples
     --------
@@ -133,5 +135,5 @@ class FoldGuard:
             # shorten the step where it folds: the vertices of the turned triangles and the supports of the flipped
             # normals (their last halving stops them: at the old points nothing is turned over)
             s[np.unique(moved)] *= 0.5 if k < self.halvings else 0.0
-        self.refused += 1                      # not reached: with the culprits stopped nothing is turned over
+        self.refused += 1           # stopping the culprits tipped their neighbours: no step this time
         return old

@@ -343,6 +343,18 @@ class SequenceOptions:
             raise OptionError("SequenceOptions", "geometric or image", "True (both terms are off: "
                               "nothing to fit)", False)
 
+    def frame_iterations(self, first: bool) -> int:
+        """Most iterations of a frame for the solver: the first frame's (``first``) or a later one's.
+
+        Parameters
+        ----------
+        first : bool
+            The first frame (from the template).
+        """
+        if self.solver == "gauss-newton":
+            return 3 * self.gn_iterations if first else self.gn_iterations
+        return self.first_iterations if first else self.iterations
+
     #: Fields of older versions, ignored when read back (the image term no longer ends the frame).
     RETIRED = ("joint_iterations", "joint_lr_scale")
     #: Fields of older versions under their current names.

@@ -407,7 +407,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
 
     n = len(x0)
     gauss_newton = options.solver == "gauss-newton"
-    n_it = int(iterations or (options.gn_iterations if gauss_newton else options.iterations))
+    n_it = int(iterations or options.frame_iterations(first=False))
     failure = Failure("fit_frame", context=f"frame {frame}, ")
     x = mi.Float(np.asarray(x0, dtype=np.float32).ravel())
     # rest = the previous frame's fit; Adam's first half is stiff (Gauss-Newton needs no such start)

@@ -148,9 +148,7 @@ class Coverage(Term):
         c = self.coverage
         w = c.weight / c.weight.sum()
         B = np.zeros((c.n_samples, 3, 3))
-        for d in range(3):
-            for e in range(3):
-                B[:, d, e] = np.bincount(c.nearest, w * c.normals[:, d] * c.normals[:, e], minlength=c.n_samples)
+        np.add.at(B, c.nearest, w[:, None, None] * c.normals[:, :, None] * c.normals[:, None, :])
         return (2.0 * self.weight) * block_gram(self.op.positions_matrix(), B)
 
 
@@ -177,22 +175,27 @@ class Rigidity(Term):
 
         self.arap, self.name, self.stiff = arap, name, stiff
         self._w = dr.opaque(mi.Float, float(weight))
+        self._L3 = None          # the Gauss-Newton matrix's Laplacian, (3n, 3n), built at the first call
+
+    def _factor(self, state) -> float:
+        """``stiff[0]`` before iteration ``stiff[1]``, else 1."""
+        return self.stiff[0] if self.stiff is not None and state.it < self.stiff[1] else 1.0
 
     def energy(self, state):
-        w = self._w
-        if self.stiff is not None and state.it < self.stiff[1]:
-            w = w * self.stiff[0]
+        w, factor = self._w, self._factor(state)
+        if factor != 1.0:
+            w = w * factor
         return w * self.arap.energy(state.x, self.arap.rotations(state.numpy("x")))
 
     def hessian(self, state):
-        """``2 weight (L (x) I_3)``, ``L = sum_ij w_ij (e_i - e_j)(e_i - e_j)^T`` (rotations held)."""
-        import scipy.sparse as sp
+        """``2 weight (L (x) I_3)``, ``L = sum_ij w_ij (e_i - e_j)(e_i - e_j)^T`` (rotations held; built once)."""
+        if self._L3 is None:
+            import scipy.sparse as sp
 
-        a = self.arap
-        w = float(self._w[0]) * (self.stiff[0] if self.stiff is not None and state.it < self.stiff[1] else 1.0)
-        L = sp.csr_matrix((np.r_[a.w, -a.w], (np.r_[a.I, a.I], np.r_[a.I, a.J])), shape=(a.n, a.n))
-        L = L + L.T
-        return (2.0 * w) * sp.kron(L, sp.identity(3), format="csr")
+            a = self.arap
+            L = sp.csr_matrix((np.r_[a.w, -a.w], (np.r_[a.I, a.I], np.r_[a.I, a.J])), shape=(a.n, a.n))
+            self._L3 = sp.kron(L + L.T, sp.identity(3), format="csr")
+        return (2.0 * float(self._w[0]) * self._factor(state)) * self._L3
 
 
 class Fold(Term):
