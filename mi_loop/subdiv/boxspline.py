@@ -11,7 +11,7 @@ import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["BLOCK", "LATTICE", "PRODUCT_ROWS", "box_basis", "box_rows"]
+__all__ = ["BLOCK", "COEFFICIENTS", "LATTICE", "PRODUCT_ROWS", "box_basis", "box_rows"]
 
 #: Axial lattice coordinates of the 12 patch points (Stam's order 1..12).
 LATTICE = np.array([(0, -1), (-1, 0), (1, -1), (0, 0), (-1, 1), (2, -1),
@@ -66,8 +66,10 @@ def _coefficients():
 _MONO3 = [(i, j, 3 - i - j) for i in range(3, -1, -1) for j in range(3 - i, -1, -1)]
 _C, _DU, _DV = _coefficients()
 
-
-_COEFFICIENTS = {None: _C, "u": _DU, "v": _DV}
+#: Box-spline rows as monomials times these: ``(15, 12)`` for the value over the
+#: quartic monomials ``wa^i wb^j wc^(4-i-j)`` (``i`` then ``j`` descending), ``(10, 12)``
+#: for ``d/du`` and ``d/dv`` over the cubic ones, in the same order.
+COEFFICIENTS = {None: _C, "u": _DU, "v": _DV}
 #: Points per block of monomials in :func:`box_rows` (its temporaries stay in cache).
 BLOCK = 4096
 #: Rows per matrix product: small enough for BLAS (OpenBLAS below 2^18
@@ -129,7 +131,7 @@ def box_rows(u: np.ndarray, v: np.ndarray, derivatives, width: int = 12, scale=N
                 M3 *= scale[a:b]
             blocks += [(d, M3) for d in ("u", "v") if d in out]
         for d, M in blocks:
-            C, W = _COEFFICIENTS[d], out[d]
+            C, W = COEFFICIENTS[d], out[d]
             for r in range(0, b - a, PRODUCT_ROWS):
                 e = min(b - a, r + PRODUCT_ROWS)
                 np.matmul(M[:, r:e].T, C, out=W[a + r:a + e, :12])
@@ -163,7 +165,7 @@ def box_basis(uv: np.ndarray, derivative: str | None = None) -> np.ndarray:
     >>> bool(np.abs(box_basis(uv, "u").sum(1)).max() < 1e-12)
     True
     """
-    if derivative not in _COEFFICIENTS:
+    if derivative not in COEFFICIENTS:
         fail("box_basis", "derivative None, 'u' or 'v'", repr(derivative))
     uv = np.asarray(uv, dtype=np.float64)
     return box_rows(np.ascontiguousarray(uv[:, 0]), np.ascontiguousarray(uv[:, 1]), (derivative,))[derivative]

@@ -343,7 +343,7 @@ class IrregularSamples:
             self.groups.append((qr // 3, qr % 3, c, d, float(factor[start]), int(start), int(stop)))
 
     def apply(self, h, W: dict):
-        """Overwrite the rows of these samples in the padded weights ``W`` (box-spline rows at ``(cu, cv)``)."""
+        """Write the rows of these samples into the padded weights ``W`` (``{derivative: (k, width)}``)."""
         names = list(W)
         width = W[names[0]].shape[1]
         derivs = [d for d in names if d is not None]
@@ -363,8 +363,9 @@ class IrregularSamples:
             for a0 in range(a, e, PRODUCT_ROWS):
                 e0 = min(e, a0 + PRODUCT_ROWS)
                 rows = self.rows[a0:e0]
-                B = {d: np.take(W[d], rows, axis=0)[:, :12] if d in W else
-                     box_rows(self.cu[a0:e0], self.cv[a0:e0], (d,), 12, self.scale[a0:e0])[d] for d in need}
+                # Evaluated here, block by block, whatever W holds: the rows are then the same bits
+                # whichever derivatives are asked for (box_rows' products depend on the batch).
+                B = box_rows(self.cu[a0:e0], self.cv[a0:e0], need, 12, self.scale[a0:e0])
                 out = buf[:e0 - a0]
                 out[:, K:] = 0.0
                 if None in W:

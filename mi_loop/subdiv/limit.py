@@ -19,6 +19,7 @@ from mi_loop.errors import fail
 from mi_loop.mesh.halfedge import Topology
 from mi_loop.mesh.topology import sharp_topology
 from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_rows
+from mi_loop.subdiv.compose import composed_rows
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
 from mi_loop.subdiv.irregular import IrregularSamples
 from mi_loop.subdiv.subdivision import loop_beta
@@ -237,8 +238,7 @@ def vertex_rows(F, n_vertices, model, derivatives, func):
     """
     h = build_hierarchy(F, n_vertices, func=func, **model)
     face, uv = vertex_samples(h.levels[0].F, n_vertices)
-    S = h.composed()
-    return [(padded_to_csr(i, w, h.top.n) @ S).tocsr() for i, w in level_rows(h, face, uv, derivatives)]
+    return composed_rows(h, face, uv, derivatives)
 
 
 def position_masks(topo: Topology, func, model):
@@ -339,21 +339,25 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None, *, 
         ``(1-u-v) V[F[f,0]] + u V[F[f,1]] + v V[F[f,2]]`` maps to the limit point.
     creases : None, (c, 2) int numpy array, or tuple ``(E, sharpness)``
         See :func:`mi_loop.subdivision_matrix`.
-    derivative : None, 'u' or 'v'
-        Limit point, or its parametric derivative.
+    derivative : None, 'u', 'v', or a tuple of them
+        Limit point, or its parametric derivative. A tuple, e.g.
+        ``(None, 'u', 'v')``, returns one matrix per entry, built in one pass
+        (one hierarchy, one composition): about a third of the time of
+        separate calls.
     corners, boundary, crease_method : optional
         The rest of OpenSubdiv's crease model, see :func:`mi_loop.subdivision_matrix`.
 
     Returns
     -------
-    scipy.sparse.csr_matrix, shape ``(k, n)``, float64
-        ``W @ V`` gives the ``(k, 3)`` limit points (derivatives).
+    scipy.sparse.csr_matrix, shape ``(k, n)``, float64, or a tuple of them
+        ``W @ V`` gives the ``(k, 3)`` limit points (derivatives). Sorted
+        indices, no explicit zeros.
 
     Raises
     ------
     ValueError
         Invalid mesh, crease model or samples, a sample on a hole (boundary
-        ``'none'``), or an unknown ``derivative``; the message names the
+        ``'none'``), or an unknown or empty ``derivative``; the message names the
         offending element. Two faces on the same three
         vertices (a closed two-triangle component) are refused, see
         :func:`~mi_loop.mesh.topology.validate_faces`.
@@ -375,16 +379,22 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None, *, 
     >>> W = mi_loop.limit_matrix(F, 4, np.array([0]), np.array([[0.25, 0.25]]))
     >>> W.shape, round(float(W.sum()), 12)
     ((1, 4), 1.0)
+    >>> P, Du, Dv = mi_loop.limit_matrix(F, 4, np.array([0]), np.array([[0.25, 0.25]]), derivative=(None, "u", "v"))
+    >>> bool(abs(P - W).max() == 0), Du.shape
+    (True, (1, 4))
     """
-    if derivative not in (None, "u", "v"):
-        fail("limit_matrix", "derivative None, 'u' or 'v'", repr(derivative))
+    several = isinstance(derivative, (tuple, list))
+    wanted = tuple(derivative) if several else (derivative,)
+    if not wanted or any(not (d is None or (isinstance(d, str) and d in ("u", "v"))) for d in wanted):
+        fail("limit_matrix", "derivative None, 'u' or 'v', or a non-empty tuple of them", repr(derivative))
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
-    if derivative is None and _all_corners(uv):   # the vertex masks, no hierarchy
+    if wanted == (None,) and _all_corners(uv):   # the vertex masks, no hierarchy
         topo = sharp_topology(F, n_vertices, "limit_matrix", **model)
         face_ids, uv = check_samples(face_ids, uv, len(topo.F), "limit_matrix", topo.hole)
         corner = np.where(uv[:, 0] == 1, 1, np.where(uv[:, 1] == 1, 2, 0))
-        return position_masks(topo, "limit_matrix", model)[topo.F[face_ids, corner]]
+        M = position_masks(topo, "limit_matrix", model)[topo.F[face_ids, corner]]
+        return (M,) if several else M
     h = build_hierarchy(F, n_vertices, func="limit_matrix", **model)
     face_ids, uv = check_samples(face_ids, uv, len(h.levels[0].F), "limit_matrix", h.levels[0].hole)
-    (idx, W), = level_rows(h, face_ids, uv, (derivative,))
-    return (padded_to_csr(idx, W, h.top.n) @ h.composed()).tocsr()
+    matrices = composed_rows(h, face_ids, uv, wanted)
+    return tuple(matrices) if several else matrices[0]

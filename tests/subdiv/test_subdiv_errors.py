@@ -38,9 +38,21 @@ def test_samples_rejected(face_ids, uv, message):
         mi_loop.limit_matrix(TET_F, 4, face_ids, uv)
 
 
-def test_derivative_name_rejected():
-    with pytest.raises(ValueError, match=exactly("limit_matrix(): expected derivative None, 'u' or 'v', got 'w'")):
-        mi_loop.limit_matrix(TET_F, 4, np.array([0]), np.array([[0.1, 0.1]]), derivative="w")
+@pytest.mark.parametrize("derivative", ["w", (), (None, "w"), [None, ("u",)], ("uv",)])
+def test_derivative_name_rejected(derivative):
+    with pytest.raises(ValueError, match=exactly("limit_matrix(): expected derivative None, 'u' or 'v', or a "
+                                                 f"non-empty tuple of them, got {derivative!r}")):
+        mi_loop.limit_matrix(TET_F, 4, np.array([0]), np.array([[0.1, 0.1]]), derivative=derivative)
+
+
+@pytest.mark.parametrize("derivatives, derivative, have", [
+    (True, "w", "None, 'u' or 'v'"), (True, (), "None, 'u' or 'v'"),
+    (False, "u", "None (built with derivatives=False)"), (False, (None, "v"), "None (built with derivatives=False)")])
+def test_operator_matrix_derivative_rejected(derivatives, derivative, have):
+    op = mi_loop.LimitOperator(TET_F, 4, np.array([0]), np.array([[0.1, 0.1]]), derivatives=derivatives)
+    with pytest.raises(ValueError, match=exactly(f"LimitOperator.matrix(): expected derivative {have}, or a "
+                                                 f"non-empty tuple of them, got {derivative!r}")):
+        op.matrix(derivative)
 
 
 def test_box_basis_derivative_rejected():
