@@ -1,6 +1,13 @@
 """Benchmark the exact Loop limit operator against OpenSubdiv (via adobe-lagrange).
 
-Measures, on two control meshes (trimesh icosphere level 3 and a decimated
+First what a user calls (``--part public``): on the icosphere with permuted
+labels and faces, at its level-5 dyadic points shuffled, ``limit_matrix`` for
+positions and both derivatives (three calls, and one call with
+``derivative=(None, 'u', 'v')``), :class:`mi_loop.LimitOperator`'s build and
+Dr.Jit apply, OpenSubdiv's limit positions and normals of the same points, and
+a copy of the operator's bytes, all in one process.
+
+Then, by step (``--part operator``), on two control meshes (trimesh icosphere level 3 and a decimated
 armadillo) and two sample sets each (a uniform tessellation and random
 ``(face, u, v)``):
 
@@ -197,7 +204,7 @@ def bench_drjit(op, V, runs, res):
     res["dr fwd+bwd P,du,dv"] = stats(ts)
     # The bandwidth yardstick of the issue: NumPy copying the operator's bytes (non-zeros x 8) once.
     buf = np.zeros(2 * res["nnz W"], dtype=np.float32)
-    res["memcpy nnz x 8 B"] = stats(timed(buf.copy, runs, warmup=1)[0])
+    res["memcpy nnz x 8 B"] = stats(timed(buf.copy, 4 * runs, warmup=2)[0])     # noisy: more runs
     res["fwd+bwd P / memcpy"] = res["dr fwd+bwd P"][1] / res["memcpy nnz x 8 B"][1]
     return g
 
@@ -314,8 +321,72 @@ def _vertex_row(name, thesis, runs):
             f"| {1e3 * thesis / masks[1]:.0f}x | {rot[1]:.2f} | {svd[1]:.2f} | {cov[1]:.2f} |")
 
 
+# -- the public API on shuffled samples, next to OpenSubdiv ---------------------------
+def shuffled_icosphere(level: int, seed: int = 0):
+    """The icosphere with permuted vertex labels and faces, and its level-``level`` dyadic points shuffled.
+
+    What a user's mesh and samples look like: no locality in the labels and
+    none in the sample order. The points are those of OpenSubdiv's uniform
+    limit evaluation at ``level``.
+    """
+    import mi_loop
+
+    V, F = icosphere()
+    rng = np.random.default_rng(seed)
+    relabel = rng.permutation(len(V))
+    Vp = np.empty_like(V)
+    Vp[relabel] = V
+    Fp = relabel[F][rng.permutation(len(F))]
+    fid, uv, _ = mi_loop.tessellate(Fp, level)
+    order = rng.permutation(len(fid))
+    return Vp, Fp, fid[order], uv[order]
+
+
+def bench_public(runs, level=5, lagrange_peer=True):
+    """``limit_matrix`` for P, d/du, d/dv (three calls and one), OpenSubdiv and the Dr.Jit apply, in one process."""
+    import drjit as dr
+
+    import mi_loop
+
+    V, F, fid, uv = shuffled_icosphere(level)
+    n, k = len(V), len(fid)
+    print(f"\n## public API: icosphere(3), {n} control vertices, labels and faces permuted; "
+          f"{k:,} level-{level} points shuffled  ({load()})")
+    res = {}
+    three = lambda: [mi_loop.limit_matrix(F, n, fid, uv, derivative=d) for d in (None, "u", "v")]  # noqa: E731
+    one = lambda: mi_loop.limit_matrix(F, n, fid, uv, derivative=(None, "u", "v"))                 # noqa: E731
+    res["limit_matrix x3 (None, u, v)"] = stats(timed(three, runs, warmup=1)[0])
+    ts, mats = timed(one, runs, warmup=1)
+    res["limit_matrix (None, u, v)"] = stats(ts)
+    res["limit_matrix (None)"] = stats(timed(lambda: mi_loop.limit_matrix(F, n, fid, uv), runs, warmup=1)[0])
+    ts, op = timed(lambda: mi_loop.LimitOperator(F, n, fid, uv), runs, warmup=1)
+    res["LimitOperator build"] = stats(ts)
+    res["nnz W"] = mats[0].nnz
+    res["nnz W (P, du, dv)"] = sum(M.nnz for M in mats)
+    if lagrange_peer:
+        import lagrange
+
+        sub = lagrange.subdivision
+        m, _ = lagrange_mesh(V, F)
+        kw = dict(num_levels=level, scheme=sub.SchemeType.Loop, use_limit_surface=True, output_limit_normals="N")
+        ts, out = timed(lambda: sub.subdivide_mesh(m, **kw), runs, warmup=1)
+        res["osd limit (P,N)"] = stats(ts)
+        if out.num_vertices != k:
+            raise RuntimeError(f"bench_public: OpenSubdiv gave {out.num_vertices} points, not {k}")
+        res["limit_matrix (None, u, v) / osd (P,N)"] = res["limit_matrix (None, u, v)"][1] / res["osd limit (P,N)"][1]
+        res["limit_matrix x3 / osd (P,N)"] = res["limit_matrix x3 (None, u, v)"][1] / res["osd limit (P,N)"][1]
+    bench_drjit(op, V, runs, res)
+    buf = np.zeros(2 * res["nnz W (P, du, dv)"], dtype=np.float32)
+    res["memcpy nnz(P,du,dv) x 8 B"] = stats(timed(buf.copy, 4 * runs, warmup=2)[0])
+    res["fwd+bwd P,du,dv / memcpy"] = res["dr fwd+bwd P,du,dv"][1] / res["memcpy nnz(P,du,dv) x 8 B"][1]
+    res["drjit threads"] = dr.thread_count()
+    report("public API, shuffled", k, res)
+
+
 # -- report ----------------------------------------------------------------------
-TIMED = ["hierarchy", "rows", "composed S_L", "op build (P)", "op build (P,du,dv)", "op.matrix()",
+TIMED = ["limit_matrix x3 (None, u, v)", "limit_matrix (None, u, v)", "limit_matrix (None)", "LimitOperator build",
+         "osd limit (P,N)", "memcpy nnz(P,du,dv) x 8 B", "hierarchy", "rows", "composed S_L", "op build (P)",
+         "op build (P,du,dv)", "op.matrix()",
          "scipy W @ V", "dr fwd P", "dr fwd P,du,dv", "dr fwd+bwd P", "dr fwd+bwd P,du,dv", "memcpy nnz x 8 B",
          "osd limit (P)", "osd limit (P,T,B,N)"]
 
@@ -344,8 +415,9 @@ def main():
     ap.add_argument("--no-lagrange", action="store_true", help="skip the OpenSubdiv comparison")
     ap.add_argument("--mesh", choices=["icosphere", "armadillo"], action="append",
                     help="restrict to one mesh (repeatable)")
-    ap.add_argument("--part", choices=["operator", "vertex"], action="append",
-                    help="operator (build and apply) and/or vertex (vertex limit, ARAP rotations); default both")
+    ap.add_argument("--part", choices=["public", "operator", "vertex"], action="append",
+                    help="public (limit_matrix and LimitOperator on shuffled samples against OpenSubdiv), operator "
+                         "(build and apply, by step) and/or vertex (vertex limit, ARAP rotations); default all three")
     args = ap.parse_args()
     target = args.samples or (100_000 if args.quick else 1_000_000)
     runs = args.runs or (2 if args.quick else 5)
@@ -362,7 +434,9 @@ def main():
     print(f"# bench_limit  {time.strftime('%Y-%m-%d %H:%M')}  nproc={os.cpu_count()}  "
           f"cpu={cpu_model()}  drjit threads={dr.thread_count()}  mitsuba {mi.__version__}  "
           f"drjit {dr.__version__}  mi_loop {code_version()}  runs={runs}  {load()}")
-    parts = args.part or ["operator", "vertex"]
+    parts = args.part or ["public", "operator", "vertex"]
+    if "public" in parts:
+        bench_public(runs, lagrange_peer=not args.no_lagrange)
     if "vertex" in parts:
         bench_vertex(runs)
     meshes = {"icosphere": icosphere, "armadillo": armadillo}

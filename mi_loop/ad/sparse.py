@@ -38,7 +38,7 @@ import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["IndexMap", "SegmentSum", "gather"]
+__all__ = ["IndexMap", "SegmentSum", "chunked_order", "gather"]
 
 #: Largest chunk (``dr.block_sum`` block) of a :class:`SegmentSum` level.
 MAX_WIDTH = 32
@@ -51,25 +51,37 @@ def _stable_order(seg: np.ndarray, n: int) -> np.ndarray:
     return np.argsort(seg, kind="stable")
 
 
+def chunked_order(seg: np.ndarray, n: int, max_width: int = MAX_WIDTH):
+    """Entries grouped by segment (stable) in chunks of ``width`` slots: ``(positions, active, width)``.
+
+    ``width = min(max_width, largest segment)``; every segment fills
+    ``ceil(count / width)`` consecutive chunks (an empty one keeps one chunk),
+    ``positions[slot]`` is the entry in that slot, ``active[slot]`` whether the
+    slot holds one (the others are padding, position 0).
+    """
+    counts = np.bincount(seg, minlength=n)
+    width = int(min(max(counts.max(initial=1), 1), max_width))
+    order = _stable_order(seg, n)
+    chunks = np.maximum(1, -(-counts // width))              # ceil, an empty segment keeps one chunk
+    first_slot = width * np.concatenate([[0], np.cumsum(chunks)[:-1]])
+    first_entry = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    # a segment's sorted entries fill consecutive slots from its first chunk on
+    slot = np.arange(len(seg)) + np.repeat(first_slot - first_entry, counts)
+    positions = np.zeros(int(chunks.sum()) * width, dtype=np.uint32)
+    active = np.zeros(len(positions), dtype=bool)
+    positions[slot], active[slot] = order, True
+    return positions, active, width
+
+
 def _levels(seg: np.ndarray, n: int):
     """NumPy tables ``[(positions, active, width)]`` of the chunked reduction of ``seg``."""
     levels = []
     while True:
-        counts = np.bincount(seg, minlength=n)
         if len(seg) == n and np.array_equal(seg, np.arange(n)):
             return levels
-        width = int(min(max(counts.max(initial=1), 1), MAX_WIDTH))
-        order = _stable_order(seg, n)
-        chunks = np.maximum(1, -(-counts // width))              # ceil, an empty segment keeps one chunk
-        first_slot = width * np.concatenate([[0], np.cumsum(chunks)[:-1]])
-        first_entry = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        # a segment's sorted entries fill consecutive slots from its first chunk on
-        slot = np.arange(len(seg)) + np.repeat(first_slot - first_entry, counts)
-        positions = np.zeros(int(chunks.sum()) * width, dtype=np.uint32)
-        active = np.zeros(len(positions), dtype=bool)
-        positions[slot], active[slot] = order, True
+        positions, active, width = chunked_order(seg, n)
         levels.append((positions, active, width))
-        seg = np.repeat(np.arange(n), chunks)
+        seg = np.repeat(np.arange(n), np.maximum(1, -(-np.bincount(seg, minlength=n) // width)))
 
 
 class SegmentSum:
