@@ -135,7 +135,10 @@ class _Rows:
 
         if not dr.grad_enabled(x):
             return self.forward(x, names)
-        return list(dr.custom(_rows_op(), self, x, tuple(names)))
+        # One custom operation per output: under Mitsuba's nested traversals (mi.render's reverse pass
+        # reaching limit normals through an emitter's radiance), an operation with three outputs was
+        # handed adjoints of outputs it had already propagated (test_sequence_photos' exposure test).
+        return [dr.custom(_rows_op(), self, x, d) for d in names]
 
 
 def _rows_op():
@@ -145,17 +148,16 @@ def _rows_op():
         import drjit as dr
 
         class RowsOp(dr.CustomOp):
-            def eval(self, rows, x, names):
-                self.rows, self.cls, self.names = rows, type(x), names
-                return tuple(rows.forward(x, names))
+            def eval(self, rows, x, derivative):
+                self.rows, self.cls, self.derivative = rows, type(x), derivative
+                return rows.forward(x, (derivative,))[0]
 
             def forward(self):
-                self.set_grad_out(tuple(self.rows.forward(self.grad_in("x"), self.names)))
+                self.set_grad_out(self.rows.forward(self.grad_in("x"), (self.derivative,))[0])
 
             def backward(self):
-                out = self.grad_out()
-                grads = {d: self.cls(g) for d, g in zip(self.names, out)}
-                self.set_grad_in("x", self.cls(self.rows.backward(grads, self.cls)))
+                grad = {self.derivative: self.cls(self.grad_out())}
+                self.set_grad_in("x", self.cls(self.rows.backward(grad, self.cls)))
 
             def name(self):
                 return "LimitRows"
@@ -165,6 +167,7 @@ def _rows_op():
 
 
 _ROWS_OP = None
+
 
 
 class LimitOperator:

@@ -7,8 +7,9 @@ subdivision matrix ``S_L``. A sparse-times-sparse product would rediscover,
 sample by sample, a pattern that only depends on the level-``L`` face. Here it
 is found once per face instead:
 
-- ``D_f`` (:func:`face_tables`): the face's patch points' rows of ``S_L``,
-  dense over the sorted control columns they reach (12-20 on a closed mesh);
+- ``D_f`` (:func:`face_tables`, for the faces that hold samples only): the
+  face's patch points' rows of ``S_L``, dense over the sorted control
+  columns they reach (12-20 on a closed mesh);
 - regular faces: the box-spline polynomial (:mod:`~mi_loop.subdiv.boxspline`),
   the face's phantom matrix and ``D_f`` multiplied once per face that holds a
   sample, ``Q_f = C Phi_f D_f`` (15 quartic monomials, 10 cubic ones for
@@ -19,9 +20,10 @@ is found once per face instead:
   times ``D_f``.
 
 The CSR arrays are written in place, one row per sample, in parallel
-(each row by one thread, in a fixed order: bit-identical results). Exact zeros
-are dropped, so the matrices equal the sparse products entry for entry up to
-rounding (about 1e-16).
+(each row by one thread, in a fixed order: bit-identical results whatever the
+thread count). Exact zeros are dropped, so the matrices equal the sparse
+products up to rounding (about 1e-16; an entry the product rounds to zero may
+be kept as a value of order 1e-17, and the other way round).
 """
 from __future__ import annotations
 
@@ -97,16 +99,14 @@ def _face_dense(face_P, active, indptr, indices, data, cols, ncols, D):    # pra
 
 
 @nb.njit(parallel=True, cache=True)
-def _face_polynomials(need, C4, C3u, C3v, Phis, pid, phantom, D, ncols, Q):    # pragma: no cover (compiled)
-    """``Q[f] = C Phi_f D_f`` of every regular face ``f`` with ``need[f]``: ``(35, C)``.
+def _face_polynomials(C4, C3u, C3v, Phis, pid, phantom, D, ncols, Q):    # pragma: no cover (compiled)
+    """``Q[f] = C Phi_f D_f`` of regular faces: ``(35, C)`` each.
 
     Rows 0-14: the quartic's monomial coefficients of each control column;
     15-24 and 25-34: those of the cubic d/du and d/dv (``C``:
     :data:`~mi_loop.subdiv.boxspline.COEFFICIENTS`).
     """
-    for f in nb.prange(len(need)):
-        if not need[f]:
-            continue
+    for f in nb.prange(len(ncols)):
         nc = ncols[f]
         P = D[f, :12, :nc].copy()
         if phantom[f]:
@@ -125,8 +125,8 @@ def _face_polynomials(need, C4, C3u, C3v, Phis, pid, phantom, D, ncols, Q):    #
 
 
 @nb.njit(parallel=True, cache=True)
-def _regular_rows(regular, faces, u, v, scale, Q, cols, ncols, offsets, out, indices):    # pragma: no cover
-    """Rows of the samples in regular faces: monomials of ``(1 - u - v, u, v)`` times ``Q[f]``.
+def _regular_rows(regular, slot, u, v, scale, Q, cols, ncols, offsets, out, indices):    # pragma: no cover
+    """Rows of the samples in regular faces: monomials of ``(1 - u - v, u, v)`` times ``Q[slot[i]]``.
 
     In sample order, so that the rows are written one after the other (a
     row-by-row scatter in face order costs twice the time on shuffled
@@ -136,13 +136,13 @@ def _regular_rows(regular, faces, u, v, scale, Q, cols, ncols, offsets, out, ind
     (vectorised, each entry summed in a fixed order).
     """
     block, width = 4096, Q.shape[2]
-    for first in nb.prange((len(faces) + block - 1) // block):
+    for first in nb.prange((len(slot) + block - 1) // block):
         m3, m4 = np.empty(10), np.empty(15)
         acc = np.empty(width)
-        for i in range(first * block, min(len(faces), (first + 1) * block)):
+        for i in range(first * block, min(len(slot), (first + 1) * block)):
             if not regular[i]:
                 continue
-            f, wb, wc = faces[i], u[i], v[i]
+            f, wb, wc = slot[i], u[i], v[i]
             _monomials(1.0 - wb - wc, wb, wc, m3, m4)
             base, nc = offsets[i], ncols[f]
             for which in range(3):                   # positions, d/du (Q rows 15-24), d/dv (25-34)
@@ -189,11 +189,14 @@ def _monomials(wa, wb, wc, m3, m4):                                          # p
 
 
 @nb.njit(parallel=True, cache=True)
-def _patch_rows(rows, faces, W, dest, D, cols, ncols, offsets, out, indices):    # pragma: no cover (compiled)
-    """Rows over the patch points ``W[d, t]`` (sample ``rows[t]``) times the face's ``D``, into ``out[dest[d]]``."""
+def _patch_rows(rows, slot, W, dest, D, cols, ncols, offsets, out, indices):    # pragma: no cover (compiled)
+    """Rows over the patch points ``W[d, t]`` (sample ``rows[t]``) times its face's ``D``, into ``out[dest[d]]``.
+
+    ``slot[i]``: the entry of sample ``i``'s face in ``D``, ``cols`` and ``ncols``.
+    """
     for t in nb.prange(len(rows)):
         i = rows[t]
-        f = faces[i]
+        f = slot[i]
         base = offsets[i]
         for c in range(ncols[f]):
             for d in range(W.shape[0]):
@@ -204,43 +207,44 @@ def _patch_rows(rows, faces, W, dest, D, cols, ncols, offsets, out, indices):   
                 indices[dest[d]][base + c] = cols[f, c]
 
 
-def face_tables(h):
-    """Return the control columns and dense ``S_L`` rows of every level-``L`` face (cached on ``h``).
+def face_tables(h, faces, width: int):
+    """Return the control columns and dense ``S_L`` rows of some level-``L`` faces.
 
     Parameters
     ----------
     h : Hierarchy
+    faces : (f,) int numpy array
+        Level-``L`` faces.
+    width : int
+        Patch points per face to take (12 for regular faces; at least the
+        ``irr_K`` of faces with an irregular corner).
 
     Returns
     -------
-    cols : (m_L, C) int32 numpy array
-        Sorted control vertices that face ``f``'s patch points depend on, in
-        its first ``ncols[f]`` entries.
-    ncols : (m_L,) int64 numpy array
-    D : (m_L, w, C) float64 numpy array
-        ``D[f, j, q]``: weight of control vertex ``cols[f, q]`` in the patch
-        point ``h.face_P[f, j]`` (zero for padding and phantom slots).
+    cols : (f, C) int32 numpy array
+        Sorted control vertices that face ``faces[i]``'s patch points depend
+        on, in its first ``ncols[i]`` entries.
+    ncols : (f,) int64 numpy array
+    D : (f, width, C) float64 numpy array
+        ``D[i, j, q]``: weight of control vertex ``cols[i, q]`` in patch
+        point ``j`` of face ``faces[i]`` (zero for padding and phantom slots).
     """
-    cached = getattr(h, "_face_tables", None)
-    if cached is not None:
-        return cached
     S = h.composed()
     S.sort_indices()
-    m, w = h.face_P.shape
-    active = np.zeros((m, w), dtype=bool)
-    irr = h.irr_corner >= 0
-    active[irr] = np.arange(w) < h.irr_K[irr, None]
+    face_P = np.ascontiguousarray(h.face_P[faces, :width])
+    irr = h.irr_corner[faces] >= 0
+    active = np.zeros(face_P.shape, dtype=bool)
+    active[irr] = np.arange(width) < h.irr_K[faces[irr], None]
     reg = np.flatnonzero(~irr)
-    active[reg, :12] = (h.Phis != 0).any(axis=1)[h.reg_pid[reg]]   # phantom slots have zero columns
-    bound = int(np.diff(S.indptr).max(initial=1)) * w
-    cols = np.zeros((m, bound), dtype=np.int32)
-    ncols = np.zeros(m, dtype=np.int64)
-    _face_columns(h.face_P, active, S.indptr, S.indices, cols, ncols)
+    active[reg, :12] = (h.Phis != 0).any(axis=1)[h.reg_pid[faces[reg]]]   # phantom slots have zero columns
+    bound = int(np.diff(S.indptr).max(initial=1)) * width
+    cols = np.zeros((len(faces), bound), dtype=np.int32)
+    ncols = np.zeros(len(faces), dtype=np.int64)
+    _face_columns(face_P, active, S.indptr, S.indices, cols, ncols)
     cols = np.ascontiguousarray(cols[:, :max(1, int(ncols.max(initial=1)))])
-    D = np.zeros((m, w, cols.shape[1]))
-    _face_dense(h.face_P, active, S.indptr, S.indices, S.data, cols, ncols, D)
-    h._face_tables = cols, ncols, D
-    return h._face_tables
+    D = np.zeros((len(faces), width, cols.shape[1]))
+    _face_dense(face_P, active, S.indptr, S.indices, S.data, cols, ncols, D)
+    return cols, ncols, D
 
 
 def composed_rows(h, face_ids, uv, derivatives):
@@ -261,12 +265,24 @@ def composed_rows(h, face_ids, uv, derivatives):
     list of scipy.sparse.csr_matrix, shape ``(k, n)``, float64
         Sorted indices, no explicit zeros.
     """
-    cols, ncols, D = face_tables(h)
     k, n = len(face_ids), h.levels[0].n
     faces, u, v, scale = np.empty(k, np.int64), np.empty(k), np.empty(k), np.empty(k)
     _map_to_level(np.ascontiguousarray(face_ids, dtype=np.int64), np.ascontiguousarray(uv), len(h.S),
                   faces, u, v, scale)
-    counts = ncols[faces]
+    # Tables of the faces that hold samples only, regular and irregular apart (memory: at most
+    # 35 + 12 doubles per control column of a regular face, w of an irregular one).
+    regular = h.irr_corner[faces] < 0
+    used = np.zeros(len(h.face_P), dtype=bool)
+    used[faces] = True
+    slot = np.zeros(len(h.face_P), dtype=np.int64)
+    reg_faces = np.flatnonzero(used & (h.irr_corner < 0))
+    irr_faces = np.flatnonzero(used & (h.irr_corner >= 0))
+    slot[reg_faces], slot[irr_faces] = np.arange(len(reg_faces)), np.arange(len(irr_faces))
+    slot = slot[faces]
+    cols_r, ncols_r, D_r = face_tables(h, reg_faces, 12)
+    cols_i, ncols_i, D_i = face_tables(h, irr_faces, int(h.irr_K[irr_faces].max(initial=12)))
+    counts = np.empty(k, dtype=np.int64)
+    counts[regular], counts[~regular] = ncols_r[slot[regular]], ncols_i[slot[~regular]]
     itype = np.int32 if counts.sum() < 2 ** 31 else np.int64      # one dtype for indices and indptr: no copies
     offsets = np.zeros(k + 1, dtype=itype)
     np.cumsum(counts, out=offsets[1:])
@@ -276,17 +292,14 @@ def composed_rows(h, face_ids, uv, derivatives):
     nnz = int(offsets[-1])
     out = tuple(np.empty(nnz if d in names else 0) for d in (None, "u", "v"))
     indices = tuple(np.empty(nnz if d in names else 0, dtype=itype) for d in (None, "u", "v"))
-    regular = h.irr_corner[faces] < 0
-    need = np.zeros(len(ncols), dtype=bool)
-    need[faces[regular]] = True
-    Q = np.empty((len(ncols), 35, cols.shape[1]))
-    _face_polynomials(need, COEFFICIENTS[None], COEFFICIENTS["u"], COEFFICIENTS["v"], h.Phis, h.reg_pid, h.phantom,
-                      D, ncols, Q)
-    _regular_rows(regular, faces, u, v, scale, Q, cols, ncols, offsets, out, indices)
+    Q = np.empty((len(reg_faces), 35, cols_r.shape[1]))
+    _face_polynomials(COEFFICIENTS[None], COEFFICIENTS["u"], COEFFICIENTS["v"], h.Phis, h.reg_pid[reg_faces],
+                      h.phantom[reg_faces], D_r, ncols_r, Q)
+    _regular_rows(regular, slot, u, v, scale, Q, cols_r, ncols_r, offsets, out, indices)
     ii = np.flatnonzero(~regular)
     if len(ii):
-        W = _irregular_level_rows(h, faces[ii], u[ii], v[ii], scale[ii], names, D.shape[1])
-        _patch_rows(ii, faces, W, dest[dest >= 0], D, cols, ncols, offsets, out, indices)
+        W = _irregular_level_rows(h, faces[ii], u[ii], v[ii], scale[ii], names, D_i.shape[1])
+        _patch_rows(ii, slot, W, dest[dest >= 0], D_i, cols_i, ncols_i, offsets, out, indices)
     matrices = {d: _csr(out[a], indices[a], offsets.copy(), (k, n)) for a, d in enumerate((None, "u", "v"))
                 if d in names}
     return [matrices[d] if derivatives.index(d) == a else matrices[d].copy() for a, d in enumerate(derivatives)]
