@@ -52,12 +52,26 @@ def _stable_order(seg: np.ndarray, n: int) -> np.ndarray:
 
 
 def chunked_order(seg: np.ndarray, n: int, max_width: int = MAX_WIDTH):
-    """Entries grouped by segment (stable) in chunks of ``width`` slots: ``(positions, active, width)``.
+    """Entries grouped by segment (stable) in chunks of ``width`` slots.
 
-    ``width = min(max_width, largest segment)``; every segment fills
-    ``ceil(count / width)`` consecutive chunks (an empty one keeps one chunk),
-    ``positions[slot]`` is the entry in that slot, ``active[slot]`` whether the
-    slot holds one (the others are padding, position 0).
+    Parameters
+    ----------
+    seg : (m,) int64 numpy array
+        Segment of every entry, in ``[0, n)``.
+    n : int
+        Number of segments.
+    max_width : int
+        Largest chunk.
+
+    Returns
+    -------
+    positions : (chunks * width,) uint32 numpy array
+        The entry in every slot (0 in padding slots).
+    active : (chunks * width,) bool numpy array
+        Whether the slot holds an entry.
+    width : int
+        ``min(max_width, largest segment)``; every segment fills
+        ``ceil(count / width)`` consecutive chunks (an empty one keeps one).
     """
     counts = np.bincount(seg, minlength=n)
     width = int(min(max(counts.max(initial=1), 1), max_width))

@@ -306,7 +306,19 @@ def composed_rows(h, face_ids, uv, derivatives):
 
 
 def level_faces(h, face_ids, uv):
-    """Return the level-``L`` face of every sample (checked ``face_ids``, ``uv``): ``(k,) int64``."""
+    """Return the level-``L`` face of every sample.
+
+    Parameters
+    ----------
+    h : Hierarchy
+    face_ids : (k,) int numpy array
+    uv : (k, 2) float64 numpy array
+        Samples, checked by :func:`~mi_loop.subdiv.limit.check_samples`.
+
+    Returns
+    -------
+    (k,) int64 numpy array
+    """
     k = len(face_ids)
     faces, u, v, scale = np.empty(k, np.int64), np.empty(k), np.empty(k), np.empty(k)
     _map_to_level(np.ascontiguousarray(face_ids, dtype=np.int64), np.ascontiguousarray(uv), len(h.S),
