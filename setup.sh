@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up mi_loop on Debian 12 (run as root from anywhere; works on the repo it lives in).
 #  1. system libraries: libLLVM >= 16 for Dr.Jit (Debian's LLVM 15 crashes: "Cannot select: ...
-#     fminimum"), libatomic for Mitsuba, OpenGL/fontconfig libraries that pymeshlab links to, and
+#     fminimum"), libatomic for Mitsuba, OpenGL/fontconfig libraries that pymeshlab links to,
+#     libgomp for Numba's OpenMP threading layer (mi_loop._numba), and
 #     Debian's chromium, the headless browser the report.html tests drive (through playwright,
 #     which is told to use it and downloads no browser of its own);
 #  2. a virtual environment .venv with `pip install -e '.[test]'`.
@@ -12,7 +13,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")"
 say() { echo "[setup] $*" >&2; }
 
 # --- 1. Debian packages -------------------------------------------------------------------
-packages=(libatomic1 libgl1 libopengl0 libfontconfig1 libgmp10 chromium)
+packages=(libatomic1 libgl1 libopengl0 libfontconfig1 libgmp10 libgomp1 chromium)
 python3 mi_loop/_llvm.py >/dev/null 2>&1 || packages+=(libllvm19)
 missing=()
 for p in "${packages[@]}"; do

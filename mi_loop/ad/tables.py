@@ -9,8 +9,9 @@ and fancy indexing).
 """
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
+
+from mi_loop._numba import numba as nb
 
 __all__ = ["forward_tables", "transposed_tables"]
 

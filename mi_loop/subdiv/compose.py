@@ -27,10 +27,10 @@ be kept as a value of order 1e-17, and the other way round).
 """
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 import scipy.sparse as sp
 
+from mi_loop._numba import numba as nb
 from mi_loop.subdiv.boxspline import COEFFICIENTS
 from mi_loop.subdiv.irregular import IrregularSamples
 
