@@ -122,18 +122,17 @@ class _Rows:
                 acc[d] = dr.fma(self.w[d][j], p, acc[d])
         return [acc[d] for d in names]
 
-    def backward(self, grads: dict, cls):
-        """Adjoint at the ``n_cols`` points of the row adjoints ``grads`` (``{d: cls (k)}``)."""
+    def backward(self, grad, derivative):
+        """Adjoint at the ``n_cols`` points of ``grad`` (3-vector type, width ``k``), that of rows ``derivative``."""
         import drjit as dr
 
-        dr.eval(grads)      # every component in one kernel (gathers would evaluate them one by one)
-        grads = {d: dr.gather(cls, g, self.order) for d, g in grads.items()}    # in the table's row order
-        dr.eval(grads)
+        cls = type(grad)
+        dr.eval(grad)       # every component in one kernel (gathers would evaluate them one by one)
+        grad = dr.gather(cls, grad, self.order)     # in the table's row order
+        dr.eval(grad)
         acc = dr.zeros(cls, dr.width(self.t_sample[0]))
-        for j, sample in enumerate(self.t_sample):
-            live = sample < self.k
-            for d, g in grads.items():
-                acc = dr.fma(self.t_w[d][j], dr.gather(cls, g, sample, live), acc)
+        for weights, sample in zip(self.t_w[derivative], self.t_sample):
+            acc = dr.fma(weights, dr.gather(cls, grad, sample, sample < self.k), acc)
         return self.t_sum(acc)
 
     def apply(self, x, names=(None,)):
@@ -163,8 +162,7 @@ def _rows_op():
                 self.set_grad_out(self.rows.forward(self.grad_in("x"), (self.derivative,))[0])
 
             def backward(self):
-                grad = {self.derivative: self.cls(self.grad_out())}
-                self.set_grad_in("x", self.cls(self.rows.backward(grad, self.cls)))
+                self.set_grad_in("x", self.cls(self.rows.backward(self.cls(self.grad_out()), self.derivative)))
 
             def name(self):
                 return "LimitRows"
@@ -174,7 +172,6 @@ def _rows_op():
 
 
 _ROWS_OP = None
-
 
 
 class LimitOperator:
