@@ -14,10 +14,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from mi_loop.ad.control import ControlPoints
-from mi_loop.errors import fail
-from mi_loop.subdiv.compose import composed_rows, level_faces
 from mi_loop.subdiv.hierarchy import build_hierarchy
-from mi_loop.subdiv.limit import check_samples, level_rows
+from mi_loop.subdiv.limit import check_samples, level_rows, requested_derivatives
 
 __all__ = ["DERIVATIVES", "LimitOperator"]
 
@@ -231,12 +229,11 @@ class LimitOperator:
         explicit zeros); a tuple such as ``(None, 'u', 'v')`` builds them in
         one pass.
         """
-        several = isinstance(derivative, (tuple, list))
-        wanted = tuple(derivative) if several else (derivative,)
-        unknown = [d for d in wanted if not (d is None or (isinstance(d, str) and d in self._rows))]
-        if unknown or not wanted:
-            have = "None, 'u' or 'v'" if self.derivatives else "None (built with derivatives=False)"
-            fail("LimitOperator.matrix", f"derivative {have}, or a non-empty tuple of them", repr(derivative))
+        from mi_loop.subdiv.compose import composed_rows  # Numba: imported on first use
+
+        several, wanted = requested_derivatives(
+            derivative, "LimitOperator.matrix", ("u", "v") if self.derivatives else (),
+            "None, 'u' or 'v'" if self.derivatives else "None (built with derivatives=False)")
         matrices = composed_rows(self._h, self.face_ids, self.uv, wanted)
         return tuple(matrices) if several else matrices[0]
 
@@ -253,7 +250,9 @@ class LimitOperator:
             idx = self._rows[None][0]          # level_rows gives every derivative the same index table
             if any(i is not idx for i, _ in self._rows.values()):
                 raise RuntimeError("LimitOperator: internal error: derivative rows with their own index tables")
-            faces = level_faces(self._h, self.face_ids, self.uv)
+            from mi_loop.subdiv.compose import level_params  # Numba: imported on first use
+
+            faces = level_params(self._h, self.face_ids, self.uv)[0]
             self._device = {"S": _Padded(S_idx, {None: S_w}, self.n),
                             "rows": _Rows(idx, {d: W for d, (_, W) in self._rows.items()}, self._n_level,
                                           np.argsort(faces, kind="stable"))}

@@ -38,7 +38,7 @@ import numpy as np
 
 from mi_loop.errors import fail
 
-__all__ = ["IndexMap", "SegmentSum", "chunked_order", "gather"]
+__all__ = ["IndexMap", "SegmentSum", "gather"]
 
 #: Largest chunk (``dr.block_sum`` block) of a :class:`SegmentSum` level.
 MAX_WIDTH = 32
@@ -51,51 +51,25 @@ def _stable_order(seg: np.ndarray, n: int) -> np.ndarray:
     return np.argsort(seg, kind="stable")
 
 
-def chunked_order(seg: np.ndarray, n: int, max_width: int = MAX_WIDTH):
-    """Entries grouped by segment (stable) in chunks of ``width`` slots.
-
-    Parameters
-    ----------
-    seg : (m,) int64 numpy array
-        Segment of every entry, in ``[0, n)``.
-    n : int
-        Number of segments.
-    max_width : int
-        Largest chunk.
-
-    Returns
-    -------
-    positions : (chunks * width,) uint32 numpy array
-        The entry in every slot (0 in padding slots).
-    active : (chunks * width,) bool numpy array
-        Whether the slot holds an entry.
-    width : int
-        ``min(max_width, largest segment)``; every segment fills
-        ``ceil(count / width)`` consecutive chunks (an empty one keeps one).
-    """
-    counts = np.bincount(seg, minlength=n)
-    width = int(min(max(counts.max(initial=1), 1), max_width))
-    order = _stable_order(seg, n)
-    chunks = np.maximum(1, -(-counts // width))              # ceil, an empty segment keeps one chunk
-    first_slot = width * np.concatenate([[0], np.cumsum(chunks)[:-1]])
-    first_entry = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    # a segment's sorted entries fill consecutive slots from its first chunk on
-    slot = np.arange(len(seg)) + np.repeat(first_slot - first_entry, counts)
-    positions = np.zeros(int(chunks.sum()) * width, dtype=np.uint32)
-    active = np.zeros(len(positions), dtype=bool)
-    positions[slot], active[slot] = order, True
-    return positions, active, width
-
-
 def _levels(seg: np.ndarray, n: int):
     """NumPy tables ``[(positions, active, width)]`` of the chunked reduction of ``seg``."""
     levels = []
     while True:
+        counts = np.bincount(seg, minlength=n)
         if len(seg) == n and np.array_equal(seg, np.arange(n)):
             return levels
-        positions, active, width = chunked_order(seg, n)
+        width = int(min(max(counts.max(initial=1), 1), MAX_WIDTH))
+        order = _stable_order(seg, n)
+        chunks = np.maximum(1, -(-counts // width))              # ceil, an empty segment keeps one chunk
+        first_slot = width * np.concatenate([[0], np.cumsum(chunks)[:-1]])
+        first_entry = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        # a segment's sorted entries fill consecutive slots from its first chunk on
+        slot = np.arange(len(seg)) + np.repeat(first_slot - first_entry, counts)
+        positions = np.zeros(int(chunks.sum()) * width, dtype=np.uint32)
+        active = np.zeros(len(positions), dtype=bool)
+        positions[slot], active[slot] = order, True
         levels.append((positions, active, width))
-        seg = np.repeat(np.arange(n), np.maximum(1, -(-np.bincount(seg, minlength=n) // width)))
+        seg = np.repeat(np.arange(n), chunks)
 
 
 class SegmentSum:

@@ -34,12 +34,12 @@ from mi_loop._numba import numba as nb
 from mi_loop.subdiv.boxspline import COEFFICIENTS
 from mi_loop.subdiv.irregular import IrregularSamples
 
-__all__ = ["composed_rows", "face_tables", "level_faces"]
+__all__ = ["composed_rows", "face_tables", "level_params"]
 
 
 @nb.njit(parallel=True, cache=True)
 def _map_to_level(face_ids, uv, levels, faces, u_out, v_out, scale):       # pragma: no cover (compiled)
-    """Face and ``(u, v)`` at level ``L`` of control-face points (see ``limit._map_to_level``)."""
+    """Face and ``(u, v)`` at level ``L`` of control-face points, and the derivative factor (:func:`level_params`)."""
     for i in nb.prange(len(face_ids)):
         f, u, v, sign = face_ids[i], uv[i, 0], uv[i, 1], 1.0
         for _ in range(levels):
@@ -162,29 +162,23 @@ def _regular_rows(regular, slot, u, v, scale, Q, cols, ncols, offsets, out, indi
 @nb.njit(inline="always")
 def _monomials(wa, wb, wc, m3, m4):                                          # pragma: no cover (compiled)
     """Cubic and quartic monomials ``wa^i wb^j wc^(d-i-j)``, ``i`` then ``j`` descending (boxspline's order)."""
+    _degree_monomials(wa, wb, wc, 3, m3)
+    _degree_monomials(wa, wb, wc, 4, m4)
+
+
+@nb.njit(inline="always")
+def _degree_monomials(wa, wb, wc, degree, out):                             # pragma: no cover (compiled)
     q = 0
-    for i in range(3, -1, -1):
-        for j in range(3 - i, -1, -1):
+    for i in range(degree, -1, -1):
+        for j in range(degree - i, -1, -1):
             x = 1.0
             for _ in range(i):
                 x *= wa
             for _ in range(j):
                 x *= wb
-            for _ in range(3 - i - j):
+            for _ in range(degree - i - j):
                 x *= wc
-            m3[q] = x
-            q += 1
-    q = 0
-    for i in range(4, -1, -1):
-        for j in range(4 - i, -1, -1):
-            x = 1.0
-            for _ in range(i):
-                x *= wa
-            for _ in range(j):
-                x *= wb
-            for _ in range(4 - i - j):
-                x *= wc
-            m4[q] = x
+            out[q] = x
             q += 1
 
 
@@ -266,9 +260,7 @@ def composed_rows(h, face_ids, uv, derivatives):
         Sorted indices, no explicit zeros.
     """
     k, n = len(face_ids), h.levels[0].n
-    faces, u, v, scale = np.empty(k, np.int64), np.empty(k), np.empty(k), np.empty(k)
-    _map_to_level(np.ascontiguousarray(face_ids, dtype=np.int64), np.ascontiguousarray(uv), len(h.S),
-                  faces, u, v, scale)
+    faces, u, v, scale = level_params(h, face_ids, uv)
     # Tables of the faces that hold samples only, regular and irregular apart (memory: at most
     # 35 + 12 doubles per control column of a regular face, w of an irregular one).
     regular = h.irr_corner[faces] < 0
@@ -305,8 +297,12 @@ def composed_rows(h, face_ids, uv, derivatives):
     return [matrices[d] if derivatives.index(d) == a else matrices[d].copy() for a, d in enumerate(derivatives)]
 
 
-def level_faces(h, face_ids, uv):
-    """Return the level-``L`` face of every sample.
+def level_params(h, face_ids, uv):
+    """Return the level-``L`` face and parameters of every sample, and its derivative factor.
+
+    Child 0, 1, 2 of a face holds its corner 0, 1, 2 and child 3 is the
+    middle face, turned by half a turn (its parameters and derivatives
+    change sign).
 
     Parameters
     ----------
@@ -317,13 +313,16 @@ def level_faces(h, face_ids, uv):
 
     Returns
     -------
-    (k,) int64 numpy array
+    faces : (k,) int64 numpy array
+    u, v : (k,) float64 numpy arrays
+    scale : (k,) float64 numpy array
+        ``+-2^L``: d/du and d/dv at level ``L`` times this are those in the control face.
     """
     k = len(face_ids)
     faces, u, v, scale = np.empty(k, np.int64), np.empty(k), np.empty(k), np.empty(k)
-    _map_to_level(np.ascontiguousarray(face_ids, dtype=np.int64), np.ascontiguousarray(uv), len(h.S),
-                  faces, u, v, scale)
-    return faces
+    _map_to_level(np.ascontiguousarray(face_ids, dtype=np.int64), np.ascontiguousarray(uv, dtype=np.float64),
+                  len(h.S), faces, u, v, scale)
+    return faces, u, v, scale
 
 
 def _irregular_level_rows(h, faces, u, v, scale, names, width):

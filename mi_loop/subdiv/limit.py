@@ -19,44 +19,13 @@ from mi_loop.errors import fail
 from mi_loop.mesh.halfedge import Topology
 from mi_loop.mesh.topology import sharp_topology
 from mi_loop.subdiv.boxspline import PRODUCT_ROWS, box_rows
-from mi_loop.subdiv.compose import composed_rows
 from mi_loop.subdiv.hierarchy import Hierarchy, build_hierarchy
 from mi_loop.subdiv.irregular import IrregularSamples
 from mi_loop.subdiv.subdivision import loop_beta
 from mi_loop.subdiv.tessellation import vertex_samples
 
-__all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr", "position_masks", "vertex_rows"]
-
-
-def _map_to_level(h: Hierarchy, face_ids: np.ndarray, uv: np.ndarray):
-    """Face and parameters ``(u, v)`` at level L of control-face points, and the derivative factor.
-
-    Child 0, 1, 2 of a face holds its corner 0, 1, 2 and child 3 is the middle
-    face, turned by half a turn (its parameters and derivatives change sign).
-    """
-    f = face_ids.astype(np.int64)
-    u, v = np.array(uv[:, 0]), np.array(uv[:, 1])
-    sign = np.ones(len(f))
-    for _ in range(len(h.S)):
-        c1 = u >= 0.5
-        c2 = v >= 0.5
-        c2 &= ~c1
-        mid = u + v > 0.5
-        mid &= ~(c1 | c2)
-        f *= 4
-        f += c1
-        f += 2 * c2
-        f += 3 * mid
-        u *= 2
-        u -= c1
-        v *= 2
-        v -= c2
-        np.subtract(1.0, u, out=u, where=mid)
-        np.subtract(1.0, v, out=v, where=mid)
-        np.negative(sign, out=sign, where=mid)
-        np.clip(u, 0.0, 1.0, out=u)
-        np.clip(v, 0.0, 1.0, out=v)
-    return f, u, v, sign * 2.0 ** len(h.S)
+__all__ = ["check_samples", "level_rows", "limit_matrix", "padded_to_csr", "position_masks", "requested_derivatives",
+           "vertex_rows"]
 
 
 def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
@@ -95,7 +64,9 @@ def level_rows(h: Hierarchy, face_ids, uv, derivatives=(None,)):
     >>> idx.shape == W.shape, round(float(W.sum()), 12)
     (True, 1.0)
     """
-    faces, u, v, scale = _map_to_level(h, face_ids, uv)
+    from mi_loop.subdiv.compose import level_params  # Numba: imported on first use
+
+    faces, u, v, scale = level_params(h, face_ids, uv)
     ii = np.flatnonzero(h.irr_corner[faces] >= 0)
     width = max(12, int(h.irr_K[faces[ii]].max())) if len(ii) else 12
     idx = np.take(np.ascontiguousarray(h.face_P[:, :width]), faces, axis=0)
@@ -236,6 +207,8 @@ def vertex_rows(F, n_vertices, model, derivatives, func):
     list of scipy.sparse.csr_matrix, shape ``(n, n)``, float64
         One per entry of ``derivatives``.
     """
+    from mi_loop.subdiv.compose import composed_rows  # Numba: imported on first use
+
     h = build_hierarchy(F, n_vertices, func=func, **model)
     face, uv = vertex_samples(h.levels[0].F, n_vertices)
     return composed_rows(h, face, uv, derivatives)
@@ -313,6 +286,37 @@ def position_masks(topo: Topology, func, model):
 
 
 
+def requested_derivatives(derivative, func, names=("u", "v"), have="None, 'u' or 'v'"):
+    """Return whether ``derivative`` is a tuple (or list) of them, and the tuple of those asked for.
+
+    Parameters
+    ----------
+    derivative : None, str, or a tuple or list of them
+        As given to :func:`limit_matrix`.
+    func : str
+        Name of the calling public function, for error messages.
+    names : tuple of str
+        The derivatives that can be asked for (besides None).
+    have : str
+        How the message names them.
+
+    Returns
+    -------
+    several : bool
+    wanted : tuple
+
+    Raises
+    ------
+    ValueError
+        An entry not None nor in ``names``, or an empty tuple.
+    """
+    several = isinstance(derivative, (tuple, list))
+    wanted = tuple(derivative) if several else (derivative,)
+    if not wanted or any(not (d is None or (isinstance(d, str) and d in names)) for d in wanted):
+        fail(func, f"derivative {have}, or a non-empty tuple of them", repr(derivative))
+    return several, wanted
+
+
 def _all_corners(uv) -> bool:
     """Whether ``uv`` is a non-empty (k, 2) array of face corners ``(0, 0)``, ``(1, 0)``, ``(0, 1)`` only."""
     uv = np.asarray(uv)
@@ -383,10 +387,9 @@ def limit_matrix(F, n_vertices, face_ids, uv, creases=None, derivative=None, *, 
     >>> bool(abs(P - W).max() == 0), Du.shape
     (True, (1, 4))
     """
-    several = isinstance(derivative, (tuple, list))
-    wanted = tuple(derivative) if several else (derivative,)
-    if not wanted or any(not (d is None or (isinstance(d, str) and d in ("u", "v"))) for d in wanted):
-        fail("limit_matrix", "derivative None, 'u' or 'v', or a non-empty tuple of them", repr(derivative))
+    from mi_loop.subdiv.compose import composed_rows  # Numba: imported on first use
+
+    several, wanted = requested_derivatives(derivative, "limit_matrix")
     model = dict(creases=creases, corners=corners, boundary=boundary, crease_method=crease_method)
     if wanted == (None,) and _all_corners(uv):   # the vertex masks, no hierarchy
         topo = sharp_topology(F, n_vertices, "limit_matrix", **model)
