@@ -115,6 +115,12 @@ class FrameFitter:
         fid, uv = sample_parameters(run.F, n, o.samples, o.seed)
         self.op = LimitOperator(run.F, n, fid, uv, derivatives=True)   # normals: facing data only
         self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
+        self.graph = self.matrices = None
+        if o.track > 0 and o.geometric:      # the coarse stage of every frame after the first
+            from mi_loop.fitting.track import DeformationGraph
+
+            self.graph = DeformationGraph(run.rest, run.F, spacing=o.track)
+            self.matrices = self.op.matrix((None, "u", "v"))
         self.rig = None
         if o.image and not photos:         # cameras fixed for the whole run (resume included): the recorded box
             from mi_loop.fitting.sequence import Rig
@@ -224,9 +230,14 @@ class FrameFitter:
 
         run = self.run
         images = self._images(t, frame)
-        V, info = sequence.fit_frame(run.x, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
+        x0 = run.x
+        if self.graph is not None and t > 0:
+            from mi_loop.fitting.track import track
+
+            x0, _ = track(self.graph, run.x, self.matrices, P, N)
+        V, info = sequence.fit_frame(x0, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
-                                     complete=frame.mesh is not None)
+                                     complete=frame.mesh is not None, anchored=x0 is not run.x)
         if run.sources.captures and info["albedo"] is not None:
             run.albedo = info["albedo"]
         return V, info

@@ -244,6 +244,13 @@ class SequenceOptions:
         (:class:`~mi_loop.fitting.optimisers.GaussNewton`), or Adam.
     gn_iterations : int
         Gauss-Newton steps of each frame after the first (the first takes 3 times as many).
+    track : int
+        Before each frame's solve, carry the previous fit to the frame's points with an embedded
+        deformation graph of about one node per ``track`` control vertices (:mod:`mi_loop.fitting.track`);
+        0: off (the solve starts from the previous fit).
+    tangential : float
+        With ``track``: weight of the term that holds each control point to where the graph carried it,
+        along the surface (:class:`~mi_loop.fitting.terms.Tangential`); 0: off.
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -333,6 +340,13 @@ class SequenceOptions:
     gn_iterations: int = option(12, rule=COUNT, metavar="N",
                                 help="Gauss-Newton steps of each frame after the first (default %(default)s; the "
                                      "first frame takes 3 times as many)")
+    track: int = option(0, rule=SEED, metavar="K",
+                        help="before each frame's solve, carry the previous fit to the frame's points with an "
+                             "embedded deformation graph, one node per about K control vertices (default "
+                             "%(default)s: off)")
+    tangential: float = option(1.0, rule=WEIGHT,
+                               help="with --track: weight of the term that holds each control point, along the "
+                                    "surface, where the graph carried it (default %(default)s; 0: off)")
 
     def __post_init__(self):
         check_fields(self)

@@ -328,7 +328,7 @@ class ImageBalance:
 
 def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: SequenceOptions, frame: int,
               lr: float, progress=None, *, rest=None, vertex_op=None, iterations: int | None = None,
-              complete: bool = False):
+              complete: bool = False, anchored: bool = False):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     One run of the optimisation loop on ``E_t`` (module docstring):
@@ -373,6 +373,10 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         The data cover the whole surface (samples of a mesh frame): every
         control vertex counts as supported, and the images weigh by the
         data's roughness against the pixel width (module docstring).
+    anchored : bool, optional
+        ``x0`` is where the frame's coarse stage carried the previous fit
+        (:mod:`mi_loop.fitting.track`): the control points are held there along the surface
+        (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``).
 
     Returns
     -------
@@ -417,6 +421,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None
     dr.eval(normals0)
+    if anchored and options.tangential > 0 and vertex_op is not None:
+        parts.append(terms.Tangential(x0, np.array(vertex_op.normals(x), dtype=np.float64).T, options.tangential))
     if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
         parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
     imls = None

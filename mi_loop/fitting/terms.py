@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CageLaplacian", "Coverage", "Distance", "Flow", "Fold", "ImageTerm", "Rigidity", "Term", "block_gram",
+__all__ = ["CageLaplacian", "Coverage", "Distance", "Flow", "Fold", "ImageTerm", "Rigidity", "Tangential", "Term",
+           "block_gram",
            "keep_lighting", "lighting_parameters"]
 
 
@@ -320,6 +321,60 @@ class Flow(Term):
         B = np.zeros((self.op.n_samples, 3, 3))
         np.add.at(B, self.c.sample, JtJ)
         return (2.0 * self.weight / k) * block_gram(self.op.positions_matrix(), B)
+
+
+class Tangential(Term):
+    """``weight mean_i |(I - n_i n_i^T)(x_i - a_i)|^2``: control points held to their anchors along the surface.
+
+    The anchors ``a_i`` are where the frame's coarse stage carried the control
+    points (:func:`mi_loop.fitting.track.track`), ``n_i`` the unit limit normal
+    at each anchor. Motion along the normal is free (the data terms decide
+    it); sliding along the surface, which no distance term measures, costs
+    as much as lying that far off the surface.
+
+    Parameters
+    ----------
+    anchors, normals : (n, 3) float NumPy arrays
+        Anchor of every control point and the unit normal there.
+    weight : float
+        Weight of the mean (the distance terms' units: squared lengths).
+
+    Examples
+    --------
+    >>> import mitsuba as mi, mi_loop
+    >>> mi_loop.set_variant("llvm_ad_rgb")
+    >>> from types import SimpleNamespace
+    >>> from mi_loop.ad.control import ControlPoints
+    >>> term = Tangential(np.zeros((1, 3)), np.array([[0.0, 0, 1]]), 2.0)
+    >>> x = ControlPoints(mi.Float([3.0, 4.0, 5.0]))      # 5 along the normal: free
+    >>> float(term.energy(SimpleNamespace(x=x))[0])
+    50.0
+    """
+
+    name = "tangential"
+
+    def __init__(self, anchors, normals, weight: float):
+        import mitsuba as mi
+
+        from mi_loop.ad.upload import upload_vec
+
+        N = np.asarray(normals, dtype=np.float64)
+        self._P = np.eye(3) - np.einsum("ia,ib->iab", N, N)                   # (n, 3, 3) tangent projectors
+        self._a, self._n = upload_vec(mi.Point3f, anchors), upload_vec(mi.Vector3f, N)
+        self.weight, self.n = float(weight), len(N)
+
+    def energy(self, state):
+        import drjit as dr
+
+        d = state.x.points - self._a
+        t = d - self._n * dr.dot(self._n, d)
+        return (self.weight / self.n) * dr.sum(dr.squared_norm(t))
+
+    def hessian(self, state):
+        """``(2 weight / n) diag(I - n_i n_i^T)`` (xyz interleaved)."""
+        import scipy.sparse as sp
+
+        return (2.0 * self.weight / self.n) * sp.block_diag(self._P, format="csr")
 
 
 class CageLaplacian(Term):

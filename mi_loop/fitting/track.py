@@ -1,0 +1,230 @@
+"""Track a frame with an embedded deformation graph: the coarse, material-preserving stage of a frame's solve.
+
+A frame of a sequence moves the body far more than it changes its shape. The
+control mesh is therefore first carried to the frame by a few hundred rigid
+motions (Sumner et al. 2007, "Embedded deformation for shape manipulation"):
+nodes ``g_j`` on the control mesh, each with a rotation ``R_j`` and a
+translation ``t_j``, move a control point ``v_i`` to
+
+    v_i' = sum_j w_ij (R_j (v_i - g_j) + g_j + t_j),
+
+``w_ij`` the weights of its ``k`` geodesically nearest nodes. The motions are
+found by Gauss-Newton (non-rigid ICP, as Li et al. 2009) on
+
+    E = mean_s rho_s [ (n_c . (q_s - c_s))^2 + point (q_s - c_s)^2 ]
+        + stiffness mean_(j,l) |R_j (g_l - g_j) + g_j + t_j - (g_l + t_l)|^2,
+
+``q_s`` the limit samples of the deformed control mesh, ``c_s`` (normal
+``n_c``) their nearest frame point where it faces the same way and lies
+within the trimmed distance, ``(j, l)`` the node pairs that share a control
+point. Each step re-linearises the rotations (``R_j <- exp([w_j]) R_j``) and
+re-finds the correspondences; the stiffness is lowered from ``stiff[0]`` to
+``stiff[1]`` over the steps (coarse to fine). A rigid motion of a limb costs no
+stiffness, a bulge or a slide of the surface against its neighbours does:
+what the frame's data do not ask for, the graph does not invent. The tracked
+control points are the warm start (and the ARAP rest) of the frame's fine
+solve (:func:`mi_loop.fitting.sequence.fit_frame`). Host NumPy/SciPy only.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["DeformationGraph", "track"]
+
+
+def _skew(a):
+    """``(k, 3, 3)`` cross-product matrices of ``(k, 3)`` vectors: ``[a]_x b = a x b``."""
+    S = np.zeros(a.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -a[..., 2], a[..., 1], -a[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = a[..., 2], -a[..., 1], a[..., 0]
+    return S
+
+
+def _exp(w):
+    """Rotation matrices ``exp([w]_x)`` of ``(k, 3)`` rotation vectors (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-12
+    safe = np.where(small, 1.0, theta)
+    K = _skew(w / safe[:, None])
+    s, c = np.where(small, 0.0, np.sin(theta)), np.where(small, 1.0, np.cos(theta))
+    return np.eye(3) + s[:, None, None] * K + (1.0 - c)[:, None, None] * (K @ K)
+
+
+class DeformationGraph:
+    """Nodes on a control mesh, each control point's node weights, and the node pairs (module docstring).
+
+    Parameters
+    ----------
+    V : (n, 3) float array-like
+        Control points (the shape the geodesic distances are measured on).
+    F : (m, 3) int array-like
+        Control faces.
+    spacing : int
+        About one node per ``spacing`` control points (farthest-point sampling
+        in geodesic distance, from the point farthest from the centroid).
+    k : int
+        Nodes per control point.
+
+    Attributes
+    ----------
+    nodes : (g,) int NumPy array
+        The control points that are nodes.
+    neighbours : (n, k) int NumPy array
+        Each control point's ``k`` nearest nodes (indices into ``nodes``).
+    weights : (n, k) float NumPy array
+        Their weights, ``(1 - d / d_(k+1))^2`` normalised to sum 1.
+    edges : (e, 2) int NumPy array
+        Ordered node pairs ``(j, l)`` that share a control point (both directions).
+
+    Examples
+    --------
+    >>> from mi_loop.datasets import icosphere
+    >>> V, F = icosphere(3)
+    >>> g = DeformationGraph(V, F, spacing=10)
+    >>> len(g.nodes), g.neighbours.shape, bool(np.allclose(g.weights.sum(axis=1), 1.0))
+    (64, (642, 4), True)
+    """
+
+    def __init__(self, V, F, spacing: int = 10, k: int = 4):
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import dijkstra
+
+        V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+        n = len(V)
+        E = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+        length = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+        G = sp.coo_matrix((length, (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
+        count = max(k + 1, int(round(n / spacing)))
+        nodes = [int(np.argmax(np.linalg.norm(V - V.mean(axis=0), axis=1)))]
+        far = dijkstra(G, directed=False, indices=nodes[0])
+        while len(nodes) < count:
+            nodes.append(int(np.argmax(far)))
+            far = np.minimum(far, dijkstra(G, directed=False, indices=nodes[-1]))
+        D = dijkstra(G, directed=False, indices=nodes).T                 # (n, g)
+        D = np.where(np.isfinite(D), D, 1e300)
+        order = np.argsort(D, axis=1, kind="stable")[:, :k + 1]
+        d = np.take_along_axis(D, order, axis=1)
+        w = np.clip(1.0 - d[:, :k] / np.maximum(d[:, k:], 1e-300), 0.0, None) ** 2
+        w[w.sum(axis=1) == 0, 0] = 1.0                                 # a point on a node: the node alone
+        self.nodes, self.neighbours = np.asarray(nodes, dtype=np.int64), order[:, :k]
+        self.weights = w / w.sum(axis=1, keepdims=True)
+        pairs = np.concatenate([self.neighbours[:, [a, b]] for a in range(k) for b in range(k) if a != b])
+        self.edges = np.unique(pairs, axis=0)
+
+    def deform(self, V, R, t):
+        """Control points ``V`` moved by the node motions ``R (g, 3, 3)``, ``t (g, 3)`` (nodes at ``V[nodes]``)."""
+        g = V[self.nodes]
+        d = V[:, None, :] - g[self.neighbours]                          # (n, k, 3)
+        moved = np.einsum("nkab,nkb->nka", R[self.neighbours], d) + g[self.neighbours] + t[self.neighbours]
+        return np.einsum("nk,nka->na", self.weights, moved)
+
+
+def _jacobian(graph: DeformationGraph, V, R):
+    """``d V' / d (w, t)``: sparse ``(3n, 6g)``, rotation increments ``w_j`` first, then ``t_j``, per node."""
+    import scipy.sparse as sp
+
+    n, k = graph.neighbours.shape
+    d = V[:, None, :] - V[graph.nodes][graph.neighbours]
+    Rd = np.einsum("nkab,nkb->nka", R[graph.neighbours], d)
+    block = np.concatenate([-_skew(Rd), np.broadcast_to(np.eye(3), (n, k, 3, 3))], axis=3)   # (n, k, 3, 6)
+    block *= graph.weights[:, :, None, None]
+    rows = np.broadcast_to((3 * np.arange(n))[:, None, None, None] + np.arange(3)[:, None], (n, k, 3, 6))
+    cols = np.broadcast_to(6 * graph.neighbours[:, :, None, None] + np.arange(6), (n, k, 3, 6))
+    return sp.csr_matrix((block.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 6 * len(graph.nodes)))
+
+
+def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, steps: int = 12,
+          stiff=(1.0, 0.1), point: float = 0.1, trim: float = 3.0, damping: float = 1e-4, start=None):
+    """Carry control points ``V`` to a frame's oriented points by the graph's node motions (module docstring).
+
+    Parameters
+    ----------
+    graph : DeformationGraph
+    V : (n, 3) float array-like
+        Control points (the previous frame's fit); the nodes sit at ``V[graph.nodes]``.
+    matrices : (P, Du, Dv) scipy.sparse matrices
+        ``(k, n)`` limit positions and derivatives of the samples (:func:`mi_loop.limit_matrix`).
+    points, normals : (N, 3) float NumPy arrays
+        The frame's points and unit normals.
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``.
+    steps : int
+        Gauss-Newton steps.
+    stiff : (float, float)
+        Stiffness at the first and at the last step (geometric in between).
+    point : float
+        Weight of the point-to-point part of a correspondence against its point-to-plane part.
+    trim : float
+        Correspondences farther than ``trim`` times the median distance are dropped.
+    damping : float
+        Levenberg damping, relative to the mean diagonal of the normal matrix.
+    start : ((g, 3, 3), (g, 3)) float NumPy arrays, optional
+        Node rotations and translations to start from (default: none, the identity).
+
+    Returns
+    -------
+    V : (n, 3) float64 NumPy array
+        The tracked control points.
+    info : dict
+        ``residual`` (RMS point-to-plane distance of the kept correspondences, per step) and
+        ``kept`` (their share of the samples, per step), ``motion`` (the nodes' ``(R, t)``).
+    """
+    import scipy.linalg
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
+
+    V = np.asarray(V, dtype=np.float64)
+    points, normals = np.asarray(points, dtype=np.float64), np.asarray(normals, dtype=np.float64)
+    tree = tree if tree is not None else cKDTree(points)
+    M, Mu, Mv = matrices
+    g = len(graph.nodes)
+    M3 = sp.kron(M, sp.identity(3), format="csr")
+    gnodes = V[graph.nodes]
+    a, b = graph.edges[:, 0], graph.edges[:, 1]
+    R, t = (np.broadcast_to(np.eye(3), (g, 3, 3)).copy(), np.zeros((g, 3))) if start is None else start
+    # regulariser rows: r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l, linear in (w_j, t_j, t_l)
+    e = len(a)
+    info = {"residual": [], "kept": []}
+    for step in range(steps):
+        s = stiff[0] * (stiff[1] / stiff[0]) ** (step / max(steps - 1, 1))
+        X = graph.deform(V, R, t)
+        Q = M @ X
+        Nq = np.cross(Mu @ X, Mv @ X)
+        Nq /= np.maximum(np.linalg.norm(Nq, axis=1, keepdims=True), 1e-300)
+        dist, idx = tree.query(Q, workers=-1)
+        ok = np.sum(normals[idx] * Nq, axis=1) > 0.5
+        if ok.any():
+            ok &= dist <= trim * np.median(dist[ok]) + 1e-12
+        keep = np.flatnonzero(ok)
+        C, Nc = points[idx[keep]], normals[idx[keep]]
+        J = M3[np.ravel(3 * keep[:, None] + np.arange(3))] @ _jacobian(graph, V, R)     # (3 kept, 6g)
+        r = (Q[keep] - C)                                                                # (kept, 3)
+        # point-to-plane rows: n_c^T J_s; point-to-point rows: sqrt(point) J_s
+        Nrows = sp.csr_matrix((Nc.ravel(), (np.repeat(np.arange(len(keep)), 3), np.arange(3 * len(keep)))),
+                              shape=(len(keep), 3 * len(keep)))
+        Jp = Nrows @ J
+        rp = np.sum(Nc * r, axis=1)
+        wfit = 1.0 / max(len(keep), 1)
+        A = wfit * ((Jp.T @ Jp) + point * (J.T @ J)).toarray()
+        rhs = -wfit * (Jp.T @ rp + point * (J.T @ r.ravel()))
+        # regulariser
+        Rg = np.einsum("eab,eb->ea", R[a], gnodes[b] - gnodes[a])
+        rr = Rg + gnodes[a] + t[a] - gnodes[b] - t[b]                                    # (e, 3)
+        rows = np.arange(3 * e).reshape(e, 3)
+        Jr_w = -_skew(Rg)                                                                # d/dw_a
+        ri = np.concatenate([np.repeat(rows, 3, axis=1).ravel(), rows.ravel(), rows.ravel()])
+        ci = np.concatenate([(6 * a[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1).ravel(),
+                             (6 * a[:, None] + 3 + np.arange(3)).ravel(), (6 * b[:, None] + 3 + np.arange(3)).ravel()])
+        vi = np.concatenate([Jr_w.ravel(), np.ones(3 * e), -np.ones(3 * e)])
+        Jr = sp.csr_matrix((vi, (ri, ci)), shape=(3 * e, 6 * g))
+        wreg = s / e
+        A += wreg * (Jr.T @ Jr).toarray()
+        rhs -= wreg * (Jr.T @ rr.ravel())
+        A[np.diag_indices_from(A)] += damping * np.mean(np.diag(A))
+        delta = scipy.linalg.solve(A, rhs, assume_a="pos").reshape(g, 6)
+        R = _exp(delta[:, :3]) @ R
+        t = t + delta[:, 3:]
+        info["residual"].append(float(np.sqrt(np.mean(rp ** 2))) if len(rp) else float("nan"))
+        info["kept"].append(len(keep) / len(Q))
+    info["motion"] = (R, t)
+    return graph.deform(V, R, t), info

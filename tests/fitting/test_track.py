@@ -1,0 +1,96 @@
+"""The coarse stage of a frame (embedded deformation tracking) and the term holding control points along the surface."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import mi_loop
+from mi_loop.datasets import icosphere
+from mi_loop.fitting.track import DeformationGraph, _exp, track
+from mi_loop.subdiv.masks import limit_mesh
+
+
+def _rotation(axis, angle):
+    a = np.asarray(axis, dtype=np.float64)
+    return _exp((angle * a / np.linalg.norm(a))[None])[0]
+
+
+def test_rodrigues_is_a_rotation_about_its_axis():
+    R = _rotation([0, 0, 1], np.pi / 2)
+    assert np.allclose(R @ [1.0, 0, 0], [0, 1, 0], atol=1e-15)
+    assert np.allclose(R.T @ R, np.eye(3), atol=1e-15) and np.isclose(np.linalg.det(R), 1.0)
+
+
+def test_graph_weights_and_pairs():
+    V, F = icosphere(3)
+    g = DeformationGraph(V, F, spacing=10)
+    assert np.allclose(g.weights.sum(axis=1), 1.0) and (g.weights >= 0).all()
+    assert len(np.unique(g.nodes)) == len(g.nodes)
+    # a node's own control point: that node is its nearest and weighs the most
+    j = np.arange(len(g.nodes))
+    assert np.all(g.neighbours[g.nodes, 0] == j) and np.all(g.weights[g.nodes].argmax(axis=1) == 0)
+    # pairs come in both directions
+    pairs = {tuple(e) for e in g.edges.tolist()}
+    assert all((b, a) in pairs for a, b in pairs)
+
+
+def test_deform_with_one_rigid_motion_moves_every_point_rigidly():
+    V, F = icosphere(2)
+    g = DeformationGraph(V, F, spacing=8)
+    R, t = _rotation([1, 2, 3], 0.3), np.array([0.1, -0.2, 0.05])
+    # node j at g_j with rotation R and translation t_j = R g_j - g_j + t is the motion x -> R x + t
+    nodes = V[g.nodes]
+    moved = g.deform(V, np.broadcast_to(R, (len(nodes), 3, 3)).copy(), nodes @ R.T - nodes + t)
+    assert np.allclose(moved, V @ R.T + t, atol=1e-14)
+
+
+def test_a_known_rigid_motion_is_recovered_so_that_material_does_not_drift():
+    """Points of the moved limit surface: the tracked control points are the moved control points."""
+    mi_loop.set_variant("llvm_ad_rgb")
+    V, F = icosphere(2)
+    V = V * [1.0, 0.7, 0.5]                        # an ellipsoid: a rotation about any axis is seen
+    R, t = _rotation([0.3, 1, 0.2], 0.04), np.array([0.01, 0.0, -0.005])
+    target = V @ R.T + t
+    P, _, N = limit_mesh(target, F, level=4)
+    tess = mi_loop.subdiv.masks.tessellate(F, 1)
+    mats = mi_loop.limit_matrix(F, len(V), tess[0], tess[1], derivative=(None, "u", "v"))
+    g = DeformationGraph(V, F, spacing=8)
+    X, info = track(g, V, mats, P, N, steps=10)
+    drift = np.linalg.norm(X - target, axis=1).max() / np.linalg.norm(np.ptp(V, axis=0))
+    start = np.linalg.norm(V - target, axis=1).max() / np.linalg.norm(np.ptp(V, axis=0))
+    assert start > 0.01 and drift < 2e-3, (start, drift)
+    assert info["residual"][-1] < 0.1 * info["residual"][0]
+
+
+def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exact():
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop.ad.control import ControlPoints
+    from mi_loop.fitting.terms import Tangential
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(5, 3))
+    N = rng.normal(size=(5, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    term = Tangential(A, N, 0.7)
+
+    class State:
+        def __init__(self, X):
+            self.x = ControlPoints(mi.Float(X.ravel()))
+
+    normal = A + 0.3 * N                                          # moved along the normals only: free
+    assert float(term.energy(State(normal))[0]) == pytest.approx(0.0, abs=1e-6)
+    X = A + rng.normal(size=A.shape)
+    D = X - A
+    T = D - N * np.sum(D * N, axis=1, keepdims=True)
+    assert float(term.energy(State(X))[0]) == pytest.approx(0.7 * np.mean(np.sum(T * T, axis=1)), rel=1e-5)
+    # the energy is quadratic: its gradient at X is H (X - A), H the term's matrix
+    x = mi.Float(X.ravel())
+    dr.enable_grad(x)
+    s = State.__new__(State)
+    s.x = ControlPoints(x)
+    dr.backward(term.energy(s))
+    H = term.hessian(s)
+    assert sp.issparse(H) and H.shape == (15, 15)
+    assert np.allclose(np.array(dr.grad(x)), H @ D.ravel(), rtol=1e-4, atol=1e-6)
