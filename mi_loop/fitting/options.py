@@ -340,7 +340,7 @@ class SequenceOptions:
     gn_iterations: int = option(12, rule=COUNT, metavar="N",
                                 help="Gauss-Newton steps of each frame after the first (default %(default)s; the "
                                      "first frame takes 3 times as many)")
-    track: int = option(0, rule=SEED, metavar="K",
+    track: int = option(0, rule=at_least(0), metavar="K",
                         help="before each frame's solve, carry the previous fit to the frame's points with an "
                              "embedded deformation graph, one node per about K control vertices (default "
                              "%(default)s: off)")

@@ -89,9 +89,11 @@ class DeformationGraph:
         import scipy.sparse as sp
         from scipy.sparse.csgraph import dijkstra
 
-        V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+        from mi_loop.mesh.geometry import edges
+
+        V = np.asarray(V, dtype=np.float64)
         n = len(V)
-        E = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+        E = edges(F)
         length = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
         G = sp.coo_matrix((length, (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
         count = max(k + 1, int(round(n / spacing)))
@@ -134,7 +136,7 @@ def _jacobian(graph: DeformationGraph, V, R):
 
 
 def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, steps: int = 12,
-          stiff=(1.0, 0.1), point: float = 0.1, trim: float = 3.0, damping: float = 1e-4, start=None):
+          stiff=(1.0, 0.1), point: float = 0.1, trim: float = 3.0, damping: float = 1e-4):
     """Carry control points ``V`` to a frame's oriented points by the graph's node motions (module docstring).
 
     Parameters
@@ -158,8 +160,6 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         Correspondences farther than ``trim`` times the median distance are dropped.
     damping : float
         Levenberg damping, relative to the mean diagonal of the normal matrix.
-    start : ((g, 3, 3), (g, 3)) float NumPy arrays, optional
-        Node rotations and translations to start from (default: none, the identity).
 
     Returns
     -------
@@ -167,7 +167,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         The tracked control points.
     info : dict
         ``residual`` (RMS point-to-plane distance of the kept correspondences, per step) and
-        ``kept`` (their share of the samples, per step), ``motion`` (the nodes' ``(R, t)``).
+        ``kept`` (their share of the samples, per step).
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -181,7 +181,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     M3 = sp.kron(M, sp.identity(3), format="csr")
     gnodes = V[graph.nodes]
     a, b = graph.edges[:, 0], graph.edges[:, 1]
-    R, t = (np.broadcast_to(np.eye(3), (g, 3, 3)).copy(), np.zeros((g, 3))) if start is None else start
+    R, t = np.broadcast_to(np.eye(3), (g, 3, 3)).copy(), np.zeros((g, 3))
     # regulariser rows: r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l, linear in (w_j, t_j, t_l)
     e = len(a)
     info = {"residual": [], "kept": []}
@@ -226,5 +226,4 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         t = t + delta[:, 3:]
         info["residual"].append(float(np.sqrt(np.mean(rp ** 2))) if len(rp) else float("nan"))
         info["kept"].append(len(keep) / len(Q))
-    info["motion"] = (R, t)
     return graph.deform(V, R, t), info
