@@ -344,7 +344,7 @@ class SequenceOptions:
                         help="before each frame's solve, carry the previous fit to the frame's points with an "
                              "embedded deformation graph, one node per about K control vertices (default "
                              "%(default)s: off)")
-    tangential: float = option(1.0, rule=WEIGHT,
+    tangential: float = option(1.0, rule=WEIGHT, metavar="W",
                                help="with --track: weight of the term that holds each control point, along the "
                                     "surface, where the graph carried it (default %(default)s; 0: off)")
 
