@@ -230,15 +230,15 @@ class FrameFitter:
 
         run = self.run
         images = self._images(t, frame)
-        tracked = self.graph is not None and t > 0
-        x0 = run.x
-        if tracked:
-            from mi_loop.fitting.track import track
+        x0, held = run.x, None
+        if self.graph is not None and t > 0:
+            from mi_loop.fitting.track import anchor_weights, track
 
-            x0, _ = track(self.graph, run.x, self.matrices, P, N)
+            x0, tracked = track(self.graph, run.x, self.matrices, P, N)
+            held = anchor_weights(self.matrices[0], tracked["held"])
         V, info = sequence.fit_frame(x0, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
-                                     complete=frame.mesh is not None, anchored=tracked)
+                                     complete=frame.mesh is not None, held=held)
         if run.sources.captures and info["albedo"] is not None:
             run.albedo = info["albedo"]
         return V, info

@@ -78,6 +78,9 @@ GN_DAMPING = 1e-3
 #: lengths (a trust region: the image gradient, which has no matrix, would otherwise be divided by ARAP's
 #: alone where the data are flat).
 GN_REACH = 0.1
+#: Where the tangential hold of a tracked frame lets go (:class:`~mi_loop.fitting.terms.Tangential`'s ``reach``),
+#: in mean control-edge lengths: slides the data do not ask for are far smaller, a mis-tracked limb's larger.
+TANGENTIAL_REACH = 0.5
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
     """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
@@ -328,7 +331,7 @@ class ImageBalance:
 
 def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: SequenceOptions, frame: int,
               lr: float, progress=None, *, rest=None, vertex_op=None, iterations: int | None = None,
-              complete: bool = False, anchored: bool = False):
+              complete: bool = False, held=None):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     One run of the optimisation loop on ``E_t`` (module docstring):
@@ -373,10 +376,11 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         The data cover the whole surface (samples of a mesh frame): every
         control vertex counts as supported, and the images weigh by the
         data's roughness against the pixel width (module docstring).
-    anchored : bool, optional
-        ``x0`` is where the frame's coarse stage carried the previous fit
+    held : (n,) float array-like, optional
+        Given when ``x0`` is where the frame's coarse stage carried the previous fit
         (:mod:`mi_loop.fitting.track`): the control points are held there along the surface
-        (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``).
+        (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``), each as
+        far as the stage found the data around it (:func:`~mi_loop.fitting.track.anchor_weights`).
 
     Returns
     -------
@@ -421,8 +425,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None
     dr.eval(normals0)
-    if anchored and options.tangential > 0 and vertex_op is not None:
-        parts.append(terms.Tangential(x0, np.array(vertex_op.normals(x), dtype=np.float64).T, options.tangential))
+    if held is not None and options.tangential > 0 and vertex_op is not None:
+        parts.append(terms.Tangential(x0, np.array(vertex_op.normals(x), dtype=np.float64).T, options.tangential,
+                                      held, reach=TANGENTIAL_REACH * mean_edge_length(x0, F)))
     if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
         parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
     imls = None

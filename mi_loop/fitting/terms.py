@@ -324,13 +324,22 @@ class Flow(Term):
 
 
 class Tangential(Term):
-    """``weight mean_i |(I - n_i n_i^T)(x_i - a_i)|^2``: control points held to their anchors along the surface.
+    """``weight mean_i h_i rho(|(I - n_i n_i^T)(x_i - a_i)|^2)``: control points held to anchors along the surface.
 
     The anchors ``a_i`` are where the frame's coarse stage carried the control
     points (:func:`mi_loop.fitting.track.track`), ``n_i`` the unit limit normal
     at each anchor. Motion along the normal is free (the data terms decide
     it); sliding along the surface, which no distance term measures, costs
-    as much as lying that far off the surface.
+    as much as lying that far off the surface: ``rho(s) = s`` for small
+    slides. An anchor can be wrong, though: a leg that swung farther between
+    two frames than the correspondences reach is carried by its neighbours'
+    motions and lands beside the data. Two things let such a point go:
+    ``h_i``, the anchor's weight from the share of the point's limit support
+    that the coarse stage brought onto the data
+    (:func:`mi_loop.fitting.track.anchor_weights`), and, with ``reach`` ``c``,
+    the Geman-McClure ``rho(s) = c^2 s / (s + c^2)``, whose pull is largest
+    at a slide of ``c / sqrt(3)`` and fades beyond: the data terms move a
+    point that they want more than a few ``c`` away.
 
     Parameters
     ----------
@@ -338,6 +347,10 @@ class Tangential(Term):
         Anchor of every control point and the unit normal there.
     weight : float
         Weight of the mean (the distance terms' units: squared lengths).
+    held : (n,) float array-like, optional
+        ``h_i`` in [0, 1] (default: all 1).
+    reach : float, optional
+        ``c`` (lengths of the control points); default: ``rho(s) = s``.
 
     Examples
     --------
@@ -349,32 +362,48 @@ class Tangential(Term):
     >>> x = ControlPoints(mi.Float([3.0, 4.0, 5.0]))      # 5 along the normal: free
     >>> float(term.energy(SimpleNamespace(x=x))[0])
     50.0
+    >>> robust = Tangential(np.zeros((1, 3)), np.array([[0.0, 0, 1]]), 2.0, reach=5.0)
+    >>> float(robust.energy(SimpleNamespace(x=x))[0])     # 2 * 25 * 25 / (25 + 25)
+    25.0
     """
 
     name = "tangential"
 
-    def __init__(self, anchors, normals, weight: float):
+    def __init__(self, anchors, normals, weight: float, held=None, reach: float | None = None):
         import mitsuba as mi
 
         from mi_loop.ad.upload import upload_vec
 
         N = np.asarray(normals, dtype=np.float64)
+        h = np.ones(len(N)) if held is None else np.asarray(held, dtype=np.float64)
+        self._anchors, self._held = np.asarray(anchors, dtype=np.float64), h
         self._P = np.eye(3) - np.einsum("ia,ib->iab", N, N)                   # (n, 3, 3) tangent projectors
         self._a, self._n = upload_vec(mi.Point3f, anchors), upload_vec(mi.Vector3f, N)
-        self.weight, self.n = float(weight), len(N)
+        self._h = mi.Float(h.astype(np.float32))
+        self.weight, self.n, self.reach = float(weight), len(N), None if reach is None else float(reach)
 
     def energy(self, state):
         import drjit as dr
 
         d = state.x.points - self._a
-        t = d - self._n * dr.dot(self._n, d)
-        return (self.weight / self.n) * dr.sum(dr.squared_norm(t))
+        s = dr.squared_norm(d - self._n * dr.dot(self._n, d))
+        if self.reach is not None:
+            c2 = self.reach ** 2
+            s = c2 * s / (s + c2)
+        return (self.weight / self.n) * dr.sum(self._h * s)
 
     def hessian(self, state):
-        """``(2 weight / n) diag(I - n_i n_i^T)`` (xyz interleaved)."""
+        """``(2 weight / n) diag(h_i rho'(s_i) (I - n_i n_i^T))`` (xyz interleaved; rho's curvature left out)."""
+        import drjit as dr
         import scipy.sparse as sp
 
-        return (2.0 * self.weight / self.n) * sp.block_diag(self._P, format="csr")
+        w = self._held
+        if self.reach is not None:
+            x = np.array(dr.detach(state.values["x"]), dtype=np.float64).reshape(-1, 3)
+            t = np.einsum("iab,ib->ia", self._P, x - self._anchors)
+            c2 = self.reach ** 2
+            w = w * (c2 / (np.sum(t * t, axis=1) + c2)) ** 2
+        return (2.0 * self.weight / self.n) * sp.block_diag(w[:, None, None] * self._P, format="csr")
 
 
 class CageLaplacian(Term):

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DeformationGraph", "track"]
+__all__ = ["DeformationGraph", "anchor_weights", "track"]
 
 
 def _skew(a):
@@ -166,8 +166,9 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     V : (n, 3) float64 NumPy array
         The tracked control points.
     info : dict
-        ``residual`` (RMS point-to-plane distance of the kept correspondences, per step) and
-        ``kept`` (their share of the samples, per step).
+        ``residual`` (RMS point-to-plane distance of the kept correspondences, per step),
+        ``kept`` (their share of the samples, per step) and ``held`` ((k,) bool: the samples
+        whose correspondence counts at the returned control points; :func:`anchor_weights`).
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -176,7 +177,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     V = np.asarray(V, dtype=np.float64)
     points, normals = np.asarray(points, dtype=np.float64), np.asarray(normals, dtype=np.float64)
     tree = tree if tree is not None else cKDTree(points)
-    M, Mu, Mv = matrices
+    M = matrices[0]
     g = len(graph.nodes)
     M3 = sp.kron(M, sp.identity(3), format="csr")
     gnodes = V[graph.nodes]
@@ -188,13 +189,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     for step in range(steps):
         s = stiff[0] * (stiff[1] / stiff[0]) ** (step / max(steps - 1, 1))
         X = graph.deform(V, R, t)
-        Q = M @ X
-        Nq = np.cross(Mu @ X, Mv @ X)
-        Nq /= np.maximum(np.linalg.norm(Nq, axis=1, keepdims=True), 1e-300)
-        dist, idx = tree.query(Q, workers=-1)
-        ok = np.sum(normals[idx] * Nq, axis=1) > 0.5
-        if ok.any():
-            ok &= dist <= trim * np.median(dist[ok]) + 1e-12
+        Q, idx, ok = _correspondences(matrices, X, tree, normals, trim)
         keep = np.flatnonzero(ok)
         C, Nc = points[idx[keep]], normals[idx[keep]]
         J = M3[np.ravel(3 * keep[:, None] + np.arange(3))] @ _jacobian(graph, V, R)     # (3 kept, 6g)
@@ -226,4 +221,59 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         t = t + delta[:, 3:]
         info["residual"].append(float(np.sqrt(np.mean(rp ** 2))) if len(rp) else float("nan"))
         info["kept"].append(len(keep) / len(Q))
-    return graph.deform(V, R, t), info
+    X = graph.deform(V, R, t)
+    info["held"] = _correspondences(matrices, X, tree, normals, trim)[2]
+    return X, info
+
+
+def _correspondences(matrices, X, tree, normals, trim: float):
+    """``(Q, idx, ok)``: the limit samples of ``X``, their nearest frame points, and which correspondences count.
+
+    A correspondence counts where the point's normal is within 60 degrees of the
+    sample's limit normal and the distance within ``trim`` times the median of those.
+    """
+    M, Mu, Mv = matrices
+    Q = M @ X
+    Nq = np.cross(Mu @ X, Mv @ X)
+    Nq /= np.maximum(np.linalg.norm(Nq, axis=1, keepdims=True), 1e-300)
+    dist, idx = tree.query(Q, workers=-1)
+    ok = np.sum(normals[idx] * Nq, axis=1) > 0.5
+    if ok.any():
+        ok &= dist <= trim * np.median(dist[ok]) + 1e-12
+    return Q, idx, ok
+
+
+def anchor_weights(M, held, lower: float = 0.5, upper: float = 0.9):
+    """How far to trust each tracked control point: from the share of its limit support that found the frame's data.
+
+    The share of point ``i`` is ``h_i = sum_s |M_si| held_s / sum_s |M_si|``. A
+    point whose support mostly found no data (a limb that moved farther than
+    the correspondences reach) was carried by its neighbours' motions alone,
+    and is often wrong by more than a control edge; where the support found
+    the data, the tracked point is within a fraction of an edge of the fit.
+
+    Parameters
+    ----------
+    M : (k, n) scipy.sparse matrix
+        Limit positions of the samples (:func:`mi_loop.limit_matrix`).
+    held : (k,) bool array-like
+        Samples whose correspondence counted at the tracked state (:func:`track`'s ``info["held"]``).
+    lower, upper : float
+        Weight 0 for ``h_i <= lower``, 1 for ``h_i >= upper``, linear in between.
+
+    Returns
+    -------
+    (n,) float NumPy array
+        In [0, 1]; 0 for a point that supports no sample.
+
+    Examples
+    --------
+    >>> import scipy.sparse as sp
+    >>> M = sp.csr_matrix(np.array([[0.5, 0.5, 0.0], [0.0, 0.25, 0.75]]))
+    >>> np.round(anchor_weights(M, [True, False]), 4).tolist()       # shares 1, 2/3, 0
+    [1.0, 0.4167, 0.0]
+    """
+    W = abs(M).tocsc()
+    total = np.asarray(W.sum(axis=0)).ravel()
+    share = np.where(total > 0, (W.T @ np.asarray(held, dtype=np.float64)) / np.where(total > 0, total, 1.0), 0.0)
+    return np.clip((share - lower) / (upper - lower), 0.0, 1.0)

@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 import mi_loop
 from mi_loop.datasets import icosphere
-from mi_loop.fitting.track import DeformationGraph, _exp, track
+from mi_loop.fitting.track import DeformationGraph, _exp, anchor_weights, track
 from mi_loop.subdiv.masks import limit_mesh
 
 
@@ -59,6 +59,25 @@ def test_a_known_rigid_motion_is_recovered_so_that_material_does_not_drift():
     start = np.linalg.norm(V - target, axis=1).max() / np.linalg.norm(np.ptp(V, axis=0))
     assert start > 0.01 and drift < 2e-3, (start, drift)
     assert info["residual"][-1] < 0.1 * info["residual"][0]
+    assert info["held"].all()                      # every sample found the moved surface: every anchor trusted
+    assert np.all(anchor_weights(mats[0], info["held"]) == 1.0)
+
+
+def test_anchor_weights_trust_the_points_whose_support_found_data():
+    mi_loop.set_variant("llvm_ad_rgb")
+    V, F = icosphere(2)
+    tess = mi_loop.subdiv.masks.tessellate(F, 2)
+    M = mi_loop.limit_matrix(F, len(V), tess[0], tess[1])
+    Q = M @ V
+    held = Q[:, 2] > 0                              # only the upper half found data
+    w = anchor_weights(M, held)
+    assert w.shape == (len(V),) and w.min() >= 0.0 and w.max() <= 1.0
+    assert np.all(w[V[:, 2] > 0.3] == 1.0) and np.all(w[V[:, 2] < -0.3] == 0.0)
+    # the share itself, written out for one point on the equator band: weight (share - 0.5) / 0.4
+    W = abs(M).toarray()
+    i = int(np.argmin(np.abs(V[:, 2] - 0.1)))
+    share = W[held, i].sum() / W[:, i].sum()
+    assert w[i] == pytest.approx(np.clip((share - 0.5) / 0.4, 0, 1), abs=1e-12)
 
 
 def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exact():
@@ -94,3 +113,56 @@ def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exac
     H = term.hessian(s)
     assert sp.issparse(H) and H.shape == (15, 15)
     assert np.allclose(np.array(dr.grad(x)), H @ D.ravel(), rtol=1e-4, atol=1e-6)
+
+
+def test_tangential_hold_lets_go_of_far_slides_and_of_untrusted_anchors():
+    import drjit as dr
+    import mitsuba as mi
+
+    from mi_loop.ad.control import ControlPoints
+    from mi_loop.fitting.terms import Tangential
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(6, 3))
+    N = rng.normal(size=(6, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    h = np.array([1.0, 0.5, 0.0, 1.0, 0.25, 1.0])
+    c = 0.3
+    term = Tangential(A, N, 0.7, held=h, reach=c)
+
+    def state(X):
+        x = mi.Float(X.ravel())
+        dr.enable_grad(x)
+        s = type("State", (), {})()
+        s.x, s.values = ControlPoints(x), {"x": x}
+        return s, x
+
+    X = A + rng.normal(size=A.shape)
+    D = X - A
+    T = D - N * np.sum(D * N, axis=1, keepdims=True)
+    sq = np.sum(T * T, axis=1)
+    s, x = state(X)
+    e = term.energy(s)
+    assert float(e[0]) == pytest.approx(0.7 * np.mean(h * c * c * sq / (sq + c * c)), rel=1e-5)
+    # the matrix is the reweighted one: H (X - A) is the gradient itself
+    dr.backward(e)
+    H = term.hessian(s)
+    assert np.allclose(np.array(dr.grad(x)), H @ D.ravel(), rtol=1e-4, atol=1e-7)
+    # an untrusted anchor (h = 0) does not pull at all
+    assert np.allclose(np.array(dr.grad(x)).reshape(-1, 3)[2], 0.0)
+
+    # the pull on one point along a tangent: largest near c / sqrt(3), a few percent of that at 10 c
+    t = np.cross(N[0], [0.0, 0.0, 1.0])
+    t /= np.linalg.norm(t)
+
+    def pull(length):
+        Y = A.copy()
+        Y[0] += length * t
+        s, y = state(Y)
+        dr.backward(term.energy(s))
+        return float(np.linalg.norm(np.array(dr.grad(y)).reshape(-1, 3)[0]))
+
+    peak = pull(c / np.sqrt(3.0))
+    assert pull(0.5 * c / np.sqrt(3.0)) < peak and pull(2 * c / np.sqrt(3.0)) < peak
+    assert pull(10 * c) < 0.05 * peak
