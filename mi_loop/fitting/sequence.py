@@ -82,6 +82,7 @@ GN_REACH = 0.1
 #: in mean control-edge lengths: slides the data do not ask for are far smaller, a mis-tracked limb's larger.
 TANGENTIAL_REACH = 0.5
 
+
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
     """Data support of points ``Q``: 1 within ``radius`` of a data point, 0 beyond ``2 radius``, linear between.
 

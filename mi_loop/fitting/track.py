@@ -275,5 +275,6 @@ def anchor_weights(M, held, lower: float = 0.5, upper: float = 0.9):
     """
     W = abs(M).tocsc()
     total = np.asarray(W.sum(axis=0)).ravel()
-    share = np.where(total > 0, (W.T @ np.asarray(held, dtype=np.float64)) / np.where(total > 0, total, 1.0), 0.0)
+    covered = W.T @ np.asarray(held, dtype=np.float64)
+    share = np.divide(covered, total, out=np.zeros_like(total), where=total > 0)
     return np.clip((share - lower) / (upper - lower), 0.0, 1.0)

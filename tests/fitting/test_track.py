@@ -80,36 +80,46 @@ def test_anchor_weights_trust_the_points_whose_support_found_data():
     assert w[i] == pytest.approx(np.clip((share - 0.5) / 0.4, 0, 1), abs=1e-12)
 
 
-def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exact():
+def _anchors_and_normals(seed: int, n: int):
+    """Random anchors and unit normals, and the variant the tangential terms run in."""
+    mi_loop.set_variant("llvm_ad_rgb")
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, 3))
+    N = rng.normal(size=(n, 3))
+    return rng, A, N / np.linalg.norm(N, axis=1, keepdims=True)
+
+
+def _state(X):
+    """``(state, x)``: a loop state of control points ``X`` (``x`` with gradients enabled)."""
     import drjit as dr
     import mitsuba as mi
 
     from mi_loop.ad.control import ControlPoints
+
+    x = mi.Float(np.asarray(X, dtype=np.float64).ravel())
+    dr.enable_grad(x)
+    s = type("State", (), {})()
+    s.x, s.values = ControlPoints(x), {"x": x}
+    return s, x
+
+
+def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exact():
+    import drjit as dr
+
     from mi_loop.fitting.terms import Tangential
 
-    mi_loop.set_variant("llvm_ad_rgb")
-    rng = np.random.default_rng(3)
-    A = rng.normal(size=(5, 3))
-    N = rng.normal(size=(5, 3))
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    rng, A, N = _anchors_and_normals(3, 5)
     term = Tangential(A, N, 0.7)
-
-    class State:
-        def __init__(self, X):
-            self.x = ControlPoints(mi.Float(X.ravel()))
-
     normal = A + 0.3 * N                                          # moved along the normals only: free
-    assert float(term.energy(State(normal))[0]) == pytest.approx(0.0, abs=1e-6)
+    assert float(term.energy(_state(normal)[0])[0]) == pytest.approx(0.0, abs=1e-6)
     X = A + rng.normal(size=A.shape)
     D = X - A
     T = D - N * np.sum(D * N, axis=1, keepdims=True)
-    assert float(term.energy(State(X))[0]) == pytest.approx(0.7 * np.mean(np.sum(T * T, axis=1)), rel=1e-5)
+    s, x = _state(X)
+    e = term.energy(s)
+    assert float(e[0]) == pytest.approx(0.7 * np.mean(np.sum(T * T, axis=1)), rel=1e-5)
     # the energy is quadratic: its gradient at X is H (X - A), H the term's matrix
-    x = mi.Float(X.ravel())
-    dr.enable_grad(x)
-    s = State.__new__(State)
-    s.x = ControlPoints(x)
-    dr.backward(term.energy(s))
+    dr.backward(e)
     H = term.hessian(s)
     assert sp.issparse(H) and H.shape == (15, 15)
     assert np.allclose(np.array(dr.grad(x)), H @ D.ravel(), rtol=1e-4, atol=1e-6)
@@ -117,32 +127,18 @@ def test_tangential_term_prices_sliding_not_normal_motion_and_its_matrix_is_exac
 
 def test_tangential_hold_lets_go_of_far_slides_and_of_untrusted_anchors():
     import drjit as dr
-    import mitsuba as mi
 
-    from mi_loop.ad.control import ControlPoints
     from mi_loop.fitting.terms import Tangential
 
-    mi_loop.set_variant("llvm_ad_rgb")
-    rng = np.random.default_rng(4)
-    A = rng.normal(size=(6, 3))
-    N = rng.normal(size=(6, 3))
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    rng, A, N = _anchors_and_normals(4, 6)
     h = np.array([1.0, 0.5, 0.0, 1.0, 0.25, 1.0])
     c = 0.3
     term = Tangential(A, N, 0.7, held=h, reach=c)
-
-    def state(X):
-        x = mi.Float(X.ravel())
-        dr.enable_grad(x)
-        s = type("State", (), {})()
-        s.x, s.values = ControlPoints(x), {"x": x}
-        return s, x
-
     X = A + rng.normal(size=A.shape)
     D = X - A
     T = D - N * np.sum(D * N, axis=1, keepdims=True)
     sq = np.sum(T * T, axis=1)
-    s, x = state(X)
+    s, x = _state(X)
     e = term.energy(s)
     assert float(e[0]) == pytest.approx(0.7 * np.mean(h * c * c * sq / (sq + c * c)), rel=1e-5)
     # the matrix is the reweighted one: H (X - A) is the gradient itself
@@ -159,7 +155,7 @@ def test_tangential_hold_lets_go_of_far_slides_and_of_untrusted_anchors():
     def pull(length):
         Y = A.copy()
         Y[0] += length * t
-        s, y = state(Y)
+        s, y = _state(Y)
         dr.backward(term.energy(s))
         return float(np.linalg.norm(np.array(dr.grad(y)).reshape(-1, 3)[0]))
 
