@@ -238,7 +238,8 @@ class FrameFitter:
             held = anchor_weights(self.matrices[0], tracked["held"])
         V, info = sequence.fit_frame(x0, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
-                                     complete=frame.mesh is not None, held=held)
+                                     complete=frame.mesh is not None, held=held,
+                                     previous=None if held is None else run.x)
         if run.sources.captures and info["albedo"] is not None:
             run.albedo = info["albedo"]
         return V, info

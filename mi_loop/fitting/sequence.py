@@ -332,7 +332,7 @@ class ImageBalance:
 
 def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: SequenceOptions, frame: int,
               lr: float, progress=None, *, rest=None, vertex_op=None, iterations: int | None = None,
-              complete: bool = False, held=None):
+              complete: bool = False, held=None, previous=None):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     One run of the optimisation loop on ``E_t`` (module docstring):
@@ -345,7 +345,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     ----------
     x0 : (n, 3) float64 NumPy array
         Start control points (the previous frame's fit), in the unit box;
-        also the ARAP rest shape.
+        also the ARAP rest shape unless ``previous`` is given.
     F : (m, 3) int64 NumPy array
         Control faces (one connectivity for the whole sequence).
     points, normals : (k, 3) float64 NumPy arrays or None
@@ -382,6 +382,10 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         (:mod:`mi_loop.fitting.track`): the control points are held there along the surface
         (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``), each as
         far as the stage found the data around it (:func:`~mi_loop.fitting.track.anchor_weights`).
+    previous : (n, 3) float array-like, optional
+        The previous frame's fit, ARAP's rest shape when ``x0`` is not it (a tracked start): where the coarse
+        stage bent a part the data do not hold (a limb it lost), ARAP restores the part's fitted shape
+        instead of keeping the bend. Default: ``x0``.
 
     Returns
     -------
@@ -421,7 +425,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     x = mi.Float(np.asarray(x0, dtype=np.float32).ravel())
     # rest = the previous frame's fit; Adam's first half is stiff (Gauss-Newton needs no such start)
     stiff = (options.stiff_factor, n_it // 2) if options.stiff_factor > 1 and not gauss_newton else None
-    parts = [terms.Rigidity(ARAP(x0, F), options.alpha / n, stiff=stiff)]
+    parts = [terms.Rigidity(ARAP(x0 if previous is None else previous, F), options.alpha / n, stiff=stiff)]
     if rest is not None and options.alpha_rest > 0:
         parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None

@@ -162,3 +162,35 @@ def test_tangential_hold_lets_go_of_far_slides_and_of_untrusted_anchors():
     peak = pull(c / np.sqrt(3.0))
     assert pull(0.5 * c / np.sqrt(3.0)) < peak and pull(2 * c / np.sqrt(3.0)) < peak
     assert pull(10 * c) < 0.05 * peak
+
+
+def test_a_bend_the_coarse_stage_left_where_no_data_hold_it_is_undone_by_arap_to_the_previous_fit():
+    """The fox's lost legs: a tracked start whose cap the graph pushed out, no data at the cap, its anchors untrusted.
+
+    With ARAP's rest at the tracked start the bend is kept (it costs nothing); at the previous fit, ARAP undoes it.
+    """
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.fitting.sequence import fit_frame
+    from mi_loop.fitting.static import sample_parameters
+    from mi_loop.mesh.geometry import mean_edge_length
+    from mi_loop.subdiv.masks import vertex_samples
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    V, F = icosphere(2)
+    V, n = 0.5 * V, len(V)
+    P, _, N = limit_mesh(V, F, level=4)
+    seen = P[:, 2] < 0.2                                       # no data on the cap
+    z = V[:, 2] / 0.5
+    start = V * (1.0 + 0.3 * np.clip((z - 0.5) / 0.5, 0.0, 1.0))[:, None]
+    cap = V[:, 2] > 0.3
+    op = LimitOperator(F, n, *sample_parameters(F, n, "level1", 0), derivatives=True)
+    vertex_op = LimitOperator(F, n, *vertex_samples(F, n), derivatives=True)
+    options = SequenceOptions(image=False, iterations=60, tangential=1.0)
+    bend = {}
+    for rest in ("start", "previous"):
+        X, _ = fit_frame(start, F, P[seen], N[seen], op, None, options, frame=1, lr=0.02 * mean_edge_length(V, F),
+                         vertex_op=vertex_op, held=(V[:, 2] < 0.2).astype(float),
+                         previous=V if rest == "previous" else None)
+        bend[rest] = np.linalg.norm(X - V, axis=1)[cap].mean() / np.linalg.norm(start - V, axis=1)[cap].mean()
+    assert bend["start"] > 0.85 and bend["previous"] < 0.75, bend
