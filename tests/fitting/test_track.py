@@ -190,7 +190,39 @@ def test_a_bend_the_coarse_stage_left_where_no_data_hold_it_is_undone_by_arap_to
     bend = {}
     for rest in ("start", "previous"):
         X, _ = fit_frame(start, F, P[seen], N[seen], op, None, options, frame=1, lr=0.02 * mean_edge_length(V, F),
-                         vertex_op=vertex_op, held=(V[:, 2] < 0.2).astype(float),
+                         vertex_op=vertex_op, held=(V[:, 2] < 0.2).astype(float), complete=True,
                          previous=V if rest == "previous" else None)
         bend[rest] = np.linalg.norm(X - V, axis=1)[cap].mean() / np.linalg.norm(start - V, axis=1)[cap].mean()
     assert bend["start"] > 0.85 and bend["previous"] < 0.75, bend
+
+
+def test_partial_depth_holds_its_unseen_parts_where_the_coarse_stage_carried_them_and_complete_data_let_go():
+    """A tracked start whose unseen cap the coarse stage turned about the axis (a slide along the surface).
+
+    Partial depth: the cap is unseen, not lost, and the hold keeps it where it was carried. Complete data: the
+    anchors that found no data are let go of, and ARAP to the previous fit turns the cap back.
+    """
+    from mi_loop.ad.operator import LimitOperator
+    from mi_loop.fitting.options import SequenceOptions
+    from mi_loop.fitting.sequence import fit_frame
+    from mi_loop.fitting.static import sample_parameters
+    from mi_loop.mesh.geometry import mean_edge_length
+    from mi_loop.subdiv.masks import vertex_samples
+
+    mi_loop.set_variant("llvm_ad_rgb")
+    V, F = icosphere(2)
+    V, n = 0.5 * V, len(V)
+    P, _, N = limit_mesh(V, F, level=4)
+    seen = P[:, 2] < 0.2
+    cap = V[:, 2] > 0.3
+    start = V.copy()
+    start[cap] = V[cap] @ _rotation([0, 0, 1], 0.15).T
+    op = LimitOperator(F, n, *sample_parameters(F, n, "level1", 0), derivatives=True)
+    vertex_op = LimitOperator(F, n, *vertex_samples(F, n), derivatives=True)
+    options = SequenceOptions(image=False, iterations=60, tangential=1.0)
+    back = {}
+    for complete in (False, True):
+        X, _ = fit_frame(start, F, P[seen], N[seen], op, None, options, frame=1, lr=0.02 * mean_edge_length(V, F),
+                         vertex_op=vertex_op, held=(V[:, 2] < 0.2).astype(float), complete=complete, previous=V)
+        back[complete] = np.linalg.norm(X - start, axis=1)[cap].mean() / np.linalg.norm(V - start, axis=1)[cap].mean()
+    assert back[False] < 0.25 and back[True] > 1.5 * back[False], back
