@@ -109,6 +109,7 @@ class FrameFitter:
         o, n = run.options, len(run.x)
         self.run, self.photo, self.albedo_opt, self.saved_lighting = run, None, None, None
         self.previous_views = None         # the last frame's photos (the optical-flow term)
+        self.views = None                  # this frame's photos
         photos = bool(run.sources.captures)
         if photos and o.image:
             self._albedo(saved)
@@ -162,14 +163,14 @@ class FrameFitter:
 
             views = read_views(run.sources.captures[t], t, frame)
             flow = None
-            if o.flow > 0 and t > 0:             # the previous frame's photos, camera by camera
+            if (o.flow > 0 or self._track_flow()) and t > 0:    # the previous frame's photos, camera by camera
                 if self.previous_views is None:      # after a resume
                     from mi_loop.io.capture import read_capture
 
                     self.previous_views = list(read_capture(run.sources.captures[t - 1]).views)
                 if len(self.previous_views) == len(views):
                     flow = (self.previous_views, views)
-            self.previous_views = views
+            self.previous_views = self.views = views
             if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
                 self.photo = ImageRenderer(run.norm.inverse(run.x), run.F, views, run.lights, albedo=run.albedo,
                                            level=o.level, spp=o.spp, deterministic=o.deterministic,
@@ -182,6 +183,37 @@ class FrameFitter:
         if self.rig is not None and frame.mesh is not None:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
+
+    def _track_flow(self) -> bool:
+        """Whether the coarse stage holds material points on the optical flow's rays (``--track-flow``)."""
+        o = self.run.options
+        return self.graph is not None and o.image and bool(self.run.sources.captures) and o.track_flow > 0
+
+    def _rays(self, images):
+        """The coarse stage's rays (:func:`~mi_loop.fitting.flow.sample_rays`), or None."""
+        from mi_loop.fitting.flow import sample_rays
+
+        if not self._track_flow() or images is None or images.flow is None:
+            return None
+        run = self.run
+        return sample_rays(*images.flow, run.x, run.F, self.matrices, (run.norm.scale, run.norm.centre))
+
+    def _held(self, x0, found, complete: bool):
+        """How far to trust each tracked control point (:func:`~mi_loop.fitting.track.anchor_weights`).
+
+        Complete data: by the share of its support that found data (what found none was lost). Partial
+        depth: by the share inside the photos' silhouettes (what found no depth may be unseen; what
+        falls outside a mask was lost); without photos every point is trusted.
+        """
+        from mi_loop.fitting.track import anchor_weights, in_silhouettes
+
+        M = self.matrices[0]
+        if complete:
+            return anchor_weights(M, found)
+        if self.views is None:
+            return np.ones(len(x0))
+        norm = self.run.norm
+        return anchor_weights(M, in_silhouettes(self.views, norm.inverse(M @ x0)))
 
     def _lighting(self, views):
         """The estimated lighting of a new renderer (``--lighting sh``, else None): the previous renderer's
@@ -232,10 +264,11 @@ class FrameFitter:
         images = self._images(t, frame)
         x0, held = run.x, None
         if self.graph is not None and t > 0:
-            from mi_loop.fitting.track import anchor_weights, track
+            from mi_loop.fitting.track import track
 
-            x0, tracked = track(self.graph, run.x, self.matrices, P, N)
-            held = anchor_weights(self.matrices[0], tracked["held"])
+            x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(images),
+                                ray=run.options.track_flow)
+            held = self._held(x0, tracked["held"], frame.mesh is not None)
         V, info = sequence.fit_frame(x0, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
                                      complete=frame.mesh is not None, held=held,

@@ -17,7 +17,9 @@ nothing. The photos see the slide. For each camera whose photos of frames
    point shows at frame ``t``.
 
 :class:`~mi_loop.fitting.terms.Flow` then pulls each sample's projection at
-frame ``t`` onto its target pixel. No file I/O here.
+frame ``t`` onto its target pixel; :func:`flow_rays` turns the targets into camera
+rays, which the coarse stage of a frame (:func:`mi_loop.fitting.track.track`) holds
+each sample on. No file I/O here.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Correspondences", "flow_correspondences", "optical_flow"]
+__all__ = ["Correspondences", "flow_correspondences", "flow_rays", "optical_flow", "sample_rays"]
 
 
 @dataclass(frozen=True)
@@ -179,3 +181,83 @@ def flow_correspondences(previous, current, Q, N, surface, *, consistency: float
         return Correspondences(np.zeros(0, np.int64), np.zeros((0, 2)), cameras, np.zeros(0, np.int64))
     return Correspondences(np.concatenate(samples).astype(np.int64), np.concatenate(targets),
                            cameras, np.concatenate(cams).astype(np.int64))
+
+
+def flow_rays(corr: Correspondences):
+    """The camera rays through the correspondences' target pixels: where each sample must lie at frame ``t``.
+
+    Parameters
+    ----------
+    corr : Correspondences
+
+    Returns
+    -------
+    sample : (k,) int64 NumPy array
+        ``corr.sample``.
+    origin, direction : (k, 3) float64 NumPy arrays
+        Each ray's camera centre and unit direction (world), through the target pixel by
+        :func:`~mi_loop.render.cameras.project`'s pinhole model: ``project(origin + s direction)``
+        is the target for every ``s > 0``.
+
+    Examples
+    --------
+    >>> from mi_loop.io.views import Camera
+    >>> cam = Camera(np.eye(4), 100.0, 50.0, 32.0, 24.0, 64, 48)
+    >>> c = Correspondences(np.array([3]), np.array([[42.0, 19.0]]), [cam], np.array([0]))
+    >>> s, o, d = flow_rays(c)
+    >>> s.tolist(), o.tolist(), np.round(d / -d[0, 2], 6).tolist()
+    ([3], [[0.0, 0.0, 0.0]], [[0.1, 0.1, -1.0]])
+    """
+    origin = np.zeros((len(corr.sample), 3))
+    direction = np.zeros((len(corr.sample), 3))
+    for i, cam in enumerate(corr.cameras):
+        at = corr.camera == i
+        if not at.any():
+            continue
+        xy = corr.target[at]
+        local = np.stack([(xy[:, 0] - cam.cx) / cam.fx, -(xy[:, 1] - cam.cy) / cam.fy, -np.ones(len(xy))], axis=1)
+        direction[at] = local @ np.asarray(cam.c2w)[:3, :3].T
+        origin[at] = np.asarray(cam.c2w)[:3, 3]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
+    return np.asarray(corr.sample, dtype=np.int64), origin, direction
+
+
+def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0))):
+    """The rays each seen limit sample of a fit must lie on at the next frame, in the fit's units.
+
+    :func:`flow_correspondences` of the samples of ``x``, seen in the photos ``previous``
+    (frame ``t-1``) and carried by the flow to ``current`` (frame ``t``), as :func:`flow_rays`
+    mapped back from the photos' world by ``to_world``: what
+    :func:`mi_loop.fitting.track.track` takes as ``rays``.
+
+    Parameters
+    ----------
+    previous, current : list of mi_loop.io.views.View
+        The photos of frames ``t-1`` and ``t``; photo ``i`` of both from the same camera.
+    x : (n, 3) float NumPy array
+        The control points fitted to frame ``t-1``, in the fit's units.
+    F : (m, 3) int NumPy array
+        Control faces.
+    matrices : (P, Du, Dv) scipy.sparse matrices
+        ``(k, n)`` limit positions and derivatives of the samples (:func:`mi_loop.limit_matrix`).
+    to_world : (float, (3,) float array)
+        ``(scale, centre)``: a point ``p`` of the fit is ``p * scale + centre`` in the photos' world.
+
+    Returns
+    -------
+    sample : (r,) int64 NumPy array
+        Rows of ``matrices``.
+    origin, direction : (r, 3) float64 NumPy arrays
+        The rays' origins (fit units) and unit directions.
+    """
+    from mi_loop.subdiv.masks import limit_mesh
+
+    scale, centre = float(to_world[0]), np.asarray(to_world[1], dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    M, Mu, Mv = matrices
+    N = np.cross(Mu @ x, Mv @ x)
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    surface = limit_mesh(x * scale + centre, F, level=2)[0]
+    sample, origin, direction = flow_rays(flow_correspondences(previous, current, (M @ x) * scale + centre, N,
+                                                               surface))
+    return sample, (origin - centre) / scale, direction

@@ -88,7 +88,7 @@ def _seen_pixels(view, X):
     return inside, px
 
 
-def in_mask(view, X, threshold: float = 0.5):
+def in_mask(view, X, threshold: float = 0.5, margin: int = 0):
     """Which points a photo sees, and which of those fall inside its mask.
 
     Parameters
@@ -99,6 +99,8 @@ def in_mask(view, X, threshold: float = 0.5):
         Points, in the capture's units.
     threshold : float
         Mask value below which a pixel is background.
+    margin : int
+        The foreground grown by this many pixels (8-neighbours) first: a point that far outside still counts.
 
     Returns
     -------
@@ -109,7 +111,12 @@ def in_mask(view, X, threshold: float = 0.5):
         For the points ``X[inside]``: the mask at their pixel is ``>= threshold``.
     """
     inside, px = _seen_pixels(view, X)
-    return inside, view.mask[px[:, 1], px[:, 0]] >= threshold
+    fore = view.mask >= threshold
+    if margin > 0:
+        from scipy.ndimage import binary_dilation
+
+        fore = binary_dilation(fore, structure=np.ones((3, 3), bool), iterations=margin)
+    return inside, fore[px[:, 1], px[:, 0]]
 
 
 @dataclass(frozen=True, eq=False)

@@ -251,6 +251,10 @@ class SequenceOptions:
     tangential : float
         With ``track``: weight of the term that holds each control point to where the graph carried it,
         along the surface (:class:`~mi_loop.fitting.terms.Tangential`); 0: off.
+    track_flow : float
+        With ``track`` and photos: weight of the camera rays, through where the optical flow carried
+        the previous fit's samples, that the graph holds them on (:func:`~mi_loop.fitting.flow.flow_rays`);
+        0: off.
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -347,6 +351,10 @@ class SequenceOptions:
     tangential: float = option(1.0, rule=WEIGHT, metavar="W",
                                help="with --track: weight of the term that holds each control point, along the "
                                     "surface, where the graph carried it (default %(default)s; 0: off)")
+    track_flow: float = option(1.0, rule=WEIGHT, metavar="W",
+                               help="with --track and --images: weight of the camera rays that the graph holds the "
+                                    "surface's material points on, through where the optical flow between a camera's "
+                                    "photos of consecutive frames carried them (default %(default)s; 0: off)")
 
     def __post_init__(self):
         check_fields(self)

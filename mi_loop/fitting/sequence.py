@@ -381,12 +381,12 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     held : (n,) float array-like, optional
         Given when ``x0`` is where the frame's coarse stage carried the previous fit
         (:mod:`mi_loop.fitting.track`): the control points are held there along the surface
-        (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``). With ``complete``
-        data each point is held as far as the stage found the data around it
-        (:func:`~mi_loop.fitting.track.anchor_weights`), and no farther than :data:`TANGENTIAL_REACH`:
-        where the data cover the whole surface, a part that found none is one the stage lost (a limb that
-        swung farther than the correspondences reach). Partial depth leaves parts unseen, not lost: there
-        every point is held, quadratically (the tracked shape is the best guess the geometry gives).
+        (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``), each by its weight
+        in ``held`` (:func:`~mi_loop.fitting.track.anchor_weights`: how far the coarse stage is to be
+        trusted there). With ``complete`` data the hold also lets go beyond :data:`TANGENTIAL_REACH`:
+        where the data cover the whole surface, a part that found none is one the stage lost (a limb
+        that swung farther than the correspondences reach); partial depth leaves parts unseen, not lost,
+        and holds them quadratically (the tracked shape is the best guess the geometry gives).
     previous : (n, 3) float array-like, optional
         The previous frame's fit, ARAP's rest shape when ``x0`` is not it (a tracked start): where the coarse
         stage bent a part the data do not hold (a limb it lost), ARAP restores the part's fitted shape
@@ -437,11 +437,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     dr.eval(normals0)
     if held is not None and options.tangential > 0 and vertex_op is not None:
         N0 = np.array(vertex_op.normals(x), dtype=np.float64).T
-        if complete:        # a part that found no data was lost: let go of it, and of far slides
-            hold = terms.Tangential(x0, N0, options.tangential, held, reach=TANGENTIAL_REACH * mean_edge_length(x0, F))
-        else:               # partial depth: a part without data is unseen, and the tracked shape holds it
-            hold = terms.Tangential(x0, N0, options.tangential)
-        parts.append(hold)
+        reach = TANGENTIAL_REACH * mean_edge_length(x0, F) if complete else None    # let go of far slides
+        parts.append(terms.Tangential(x0, N0, options.tangential, held, reach=reach))
     if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
         parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
     imls = None

@@ -17,8 +17,12 @@ found by Gauss-Newton (non-rigid ICP, as Li et al. 2009) on
 ``q_s`` the limit samples of the deformed control mesh, ``c_s`` (normal
 ``n_c``) their nearest frame point where it faces the same way and lies
 within the trimmed distance, ``(j, l)`` the node pairs that share a control
-point. Each step re-linearises the rotations (``R_j <- exp([w_j]) R_j``) and
-re-finds the correspondences; the stiffness is lowered from ``stiff[0]`` to
+point. With photos, ``rays`` add ``ray mean_r |(I - d_r d_r^T)(q_r - o_r)|^2``: a
+sample seen at frame ``t-1`` must lie on the camera ray (origin ``o_r``, direction
+``d_r``) through the pixel the optical flow carried it to
+(:func:`mi_loop.fitting.flow.sample_rays`), which says where the material went
+where the points only say where the surface is. Each step re-linearises the
+rotations (``R_j <- exp([w_j]) R_j``) and re-finds the correspondences; the stiffness is lowered from ``stiff[0]`` to
 ``stiff[1]`` over the steps (coarse to fine). A rigid motion of a limb costs no
 stiffness, a bulge or a slide of the surface against its neighbours does:
 what the frame's data do not ask for, the graph does not invent. The tracked
@@ -29,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DeformationGraph", "anchor_weights", "track"]
+__all__ = ["DeformationGraph", "anchor_weights", "in_silhouettes", "track"]
 
 
 def _skew(a):
@@ -136,7 +140,8 @@ def _jacobian(graph: DeformationGraph, V, R):
 
 
 def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, steps: int = 12,
-          stiff=(1.0, 0.1), point: float = 0.1, trim: float = 3.0, damping: float = 1e-4):
+          stiff=(1.0, 0.1), point: float = 0.1, trim: float = 3.0, damping: float = 1e-4,
+          rays=None, ray: float = 1.0):
     """Carry control points ``V`` to a frame's oriented points by the graph's node motions (module docstring).
 
     Parameters
@@ -160,6 +165,13 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         Correspondences farther than ``trim`` times the median distance are dropped.
     damping : float
         Levenberg damping, relative to the mean diagonal of the normal matrix.
+    rays : (sample, origin, direction) or None
+        Material points seen in photos: ``(r,)`` int sample rows, and the ``(r, 3)`` origins and unit
+        directions of the camera rays they must lie on (:func:`~mi_loop.fitting.flow.flow_rays`: where the
+        optical flow carried them). Each adds ``ray / r |(I - d d^T)(q_s - o)|^2`` to the data term;
+        rays farther than ``trim`` times their median distance are dropped, step by step.
+    ray : float
+        Weight of the rays against the frame's points.
 
     Returns
     -------
@@ -167,8 +179,9 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         The tracked control points.
     info : dict
         ``residual`` (RMS point-to-plane distance of the kept correspondences, per step),
-        ``kept`` (their share of the samples, per step) and ``held`` ((k,) bool: the samples
-        whose correspondence counts at the returned control points; :func:`anchor_weights`).
+        ``kept`` (their share of the samples, per step), ``rays`` (the share of the rays kept, per
+        step) and ``held`` ((k,) bool: the samples whose correspondence counts at the returned control
+        points; :func:`anchor_weights`).
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -185,7 +198,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     R, t = np.broadcast_to(np.eye(3), (g, 3, 3)).copy(), np.zeros((g, 3))
     # regulariser rows: r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l, linear in (w_j, t_j, t_l)
     e = len(a)
-    info = {"residual": [], "kept": []}
+    info = {"residual": [], "kept": [], "rays": []}
     for step in range(steps):
         s = stiff[0] * (stiff[1] / stiff[0]) ** (step / max(steps - 1, 1))
         X = graph.deform(V, R, t)
@@ -202,6 +215,11 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         wfit = 1.0 / max(len(keep), 1)
         A = wfit * ((Jp.T @ Jp) + point * (J.T @ J)).toarray()
         rhs = -wfit * (Jp.T @ rp + point * (J.T @ r.ravel()))
+        if rays is not None and len(rays[0]):
+            Ar, br, share = _ray_rows(graph, V, R, M3, X, rays, trim)
+            A += ray * Ar
+            rhs -= ray * br
+            info["rays"].append(share)
         # regulariser
         Rg = np.einsum("eab,eb->ea", R[a], gnodes[b] - gnodes[a])
         rr = Rg + gnodes[a] + t[a] - gnodes[b] - t[b]                                    # (e, 3)
@@ -224,6 +242,26 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     X = graph.deform(V, R, t)
     info["held"] = _correspondences(matrices, X, tree, normals, trim)[2]
     return X, info
+
+
+def _ray_rows(graph, V, R, M3, X, rays, trim: float):
+    """The rays' normal matrix and gradient, ``(A, b, kept share)``, each over the kept rays' count (:func:`track`)."""
+    import scipy.sparse as sp
+
+    sample, origin, direction = rays
+    q = (M3[np.ravel(3 * sample[:, None] + np.arange(3))] @ X.ravel()).reshape(-1, 3)
+    P = np.eye(3) - direction[:, :, None] * direction[:, None, :]                     # (r, 3, 3) projectors
+    r = np.einsum("rab,rb->ra", P, q - origin)
+    dist = np.linalg.norm(r, axis=1)
+    keep = np.flatnonzero(dist <= trim * np.median(dist) + 1e-12)
+    J = M3[np.ravel(3 * sample[keep, None] + np.arange(3))] @ _jacobian(graph, V, R)
+    k = len(keep)
+    rows = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3)[:, None], (k, 3, 3))
+    cols = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3), (k, 3, 3))
+    Pk = sp.csr_matrix((P[keep].ravel(), (rows.ravel(), cols.ravel())), shape=(3 * k, 3 * k))
+    Jr = Pk @ J
+    w = 1.0 / max(len(keep), 1)
+    return w * (Jr.T @ Jr).toarray(), w * (Jr.T @ r[keep].ravel()), len(keep) / len(sample)
 
 
 def _correspondences(matrices, X, tree, normals, trim: float):
@@ -278,3 +316,35 @@ def anchor_weights(M, held, lower: float = 0.5, upper: float = 0.9):
     covered = W.T @ np.asarray(held, dtype=np.float64)
     share = np.divide(covered, total, out=np.zeros_like(total), where=total > 0)
     return np.clip((share - lower) / (upper - lower), 0.0, 1.0)
+
+
+def in_silhouettes(views, points, margin: int = 2) -> np.ndarray:
+    """Which points project inside the mask of every photo that sees them: where a tracked surface can be.
+
+    Depth from one side cannot tell a part it does not see from a part the coarse
+    stage lost (both find no data); the photos' silhouettes can: a part carried
+    beside the body falls outside some mask. With :func:`anchor_weights` this
+    says how far to trust the tracked control points of a partial frame.
+
+    Parameters
+    ----------
+    views : list of mi_loop.io.views.View
+        The frame's photos.
+    points : (k, 3) float NumPy array
+        Points in the photos' world (the tracked limit samples).
+    margin : int
+        Pixels by which each mask is grown first (soft or slightly wrong masks).
+
+    Returns
+    -------
+    (k,) bool NumPy array
+        False where a photo sees the point outside its grown mask.
+    """
+    from mi_loop.fitting.hull import in_mask
+
+    points = np.asarray(points, dtype=np.float64)
+    ok = np.ones(len(points), dtype=bool)
+    for view in views:
+        seen, fore = in_mask(view, points, margin=margin)
+        ok[np.flatnonzero(seen)[~fore]] = False
+    return ok
