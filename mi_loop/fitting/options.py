@@ -250,11 +250,12 @@ class SequenceOptions:
         0: off (the solve starts from the previous fit).
     tangential : float
         With ``track``: weight of the term that holds each control point to where the graph carried it,
-        along the surface (:class:`~mi_loop.fitting.terms.Tangential`); 0: off.
+        along the surface (:class:`~mi_loop.fitting.terms.Tangential`), on mesh frames; point-cloud frames
+        hold :data:`~mi_loop.fitting.sequence.POINTS_HOLD` times as hard; 0: off.
     track_flow : float
         With ``track`` and photos: weight of the camera rays, through where the optical flow carried
         the previous fit's samples, that the graph holds them on (:func:`~mi_loop.fitting.flow.flow_rays`);
-        0: off.
+        0 (default): off (on 128-pixel photos the flow's error is as large as a frame's motion).
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -350,11 +351,12 @@ class SequenceOptions:
                              "%(default)s: off)")
     tangential: float = option(1.0, rule=WEIGHT, metavar="W",
                                help="with --track: weight of the term that holds each control point, along the "
-                                    "surface, where the graph carried it (default %(default)s; 0: off)")
-    track_flow: float = option(1.0, rule=WEIGHT, metavar="W",
+                                    "surface, where the graph carried it, on mesh frames; point clouds hold 3 times "
+                                    "as hard (default %(default)s; 0: off)")
+    track_flow: float = option(0.0, rule=WEIGHT, metavar="W",
                                help="with --track and --images: weight of the camera rays that the graph holds the "
                                     "surface's material points on, through where the optical flow between a camera's "
-                                    "photos of consecutive frames carried them (default %(default)s; 0: off)")
+                                    "photos of consecutive frames carried them (default %(default)s: off)")
 
     def __post_init__(self):
         check_fields(self)

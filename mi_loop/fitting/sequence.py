@@ -82,6 +82,10 @@ GN_REACH = 0.1
 #: ``reach``), in mean control-edge lengths: slides the data do not ask for are far smaller, a mis-tracked
 #: limb's larger.
 TANGENTIAL_REACH = 0.5
+#: The tangential hold's weight on a tracked point-cloud frame, relative to a mesh frame's: there the hold is
+#: quadratic and a part without data is unseen, so the graph's shape is the best guess for it (on the spot
+#: capture 3 halves the drift and the flipped area against 1; on a mesh frame 3 keeps mis-tracked legs).
+POINTS_HOLD = 3.0
 
 
 def support(Q, tree, radius: float, normals=None, data_normals=None) -> np.ndarray:
@@ -386,7 +390,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         trusted there). With ``complete`` data the hold also lets go beyond :data:`TANGENTIAL_REACH`:
         where the data cover the whole surface, a part that found none is one the stage lost (a limb
         that swung farther than the correspondences reach); partial depth leaves parts unseen, not lost,
-        and holds them quadratically (the tracked shape is the best guess the geometry gives).
+        and holds them quadratically, :data:`POINTS_HOLD` times as hard (the tracked shape is the best
+        guess the geometry gives).
     previous : (n, 3) float array-like, optional
         The previous frame's fit, ARAP's rest shape when ``x0`` is not it (a tracked start): where the coarse
         stage bent a part the data do not hold (a limb it lost), ARAP restores the part's fitted shape
@@ -437,8 +442,11 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     dr.eval(normals0)
     if held is not None and options.tangential > 0 and vertex_op is not None:
         N0 = np.array(vertex_op.normals(x), dtype=np.float64).T
-        reach = TANGENTIAL_REACH * mean_edge_length(x0, F) if complete else None    # let go of far slides
-        parts.append(terms.Tangential(x0, N0, options.tangential, held, reach=reach))
+        if complete:        # let go of far slides
+            hold = terms.Tangential(x0, N0, options.tangential, held, reach=TANGENTIAL_REACH * mean_edge_length(x0, F))
+        else:
+            hold = terms.Tangential(x0, N0, POINTS_HOLD * options.tangential, held)
+        parts.append(hold)
     if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
         parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
     imls = None

@@ -205,7 +205,8 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         Q, idx, ok = _correspondences(matrices, X, tree, normals, trim)
         keep = np.flatnonzero(ok)
         C, Nc = points[idx[keep]], normals[idx[keep]]
-        J = M3[np.ravel(3 * keep[:, None] + np.arange(3))] @ _jacobian(graph, V, R)     # (3 kept, 6g)
+        MJ = M3 @ _jacobian(graph, V, R)                                                 # (3k, 6g)
+        J = MJ[np.ravel(3 * keep[:, None] + np.arange(3))]                               # (3 kept, 6g)
         r = (Q[keep] - C)                                                                # (kept, 3)
         # point-to-plane rows: n_c^T J_s; point-to-point rows: sqrt(point) J_s
         Nrows = sp.csr_matrix((Nc.ravel(), (np.repeat(np.arange(len(keep)), 3), np.arange(3 * len(keep)))),
@@ -216,7 +217,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         A = wfit * ((Jp.T @ Jp) + point * (J.T @ J)).toarray()
         rhs = -wfit * (Jp.T @ rp + point * (J.T @ r.ravel()))
         if rays is not None and len(rays[0]):
-            Ar, br, share = _ray_rows(graph, V, R, M3, X, rays, trim)
+            Ar, br, share = _ray_rows(M3, MJ, X, rays, trim)
             A += ray * Ar
             rhs -= ray * br
             info["rays"].append(share)
@@ -244,8 +245,11 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     return X, info
 
 
-def _ray_rows(graph, V, R, M3, X, rays, trim: float):
-    """The rays' normal matrix and gradient, ``(A, b, kept share)``, each over the kept rays' count (:func:`track`)."""
+def _ray_rows(M3, MJ, X, rays, trim: float):
+    """The rays' normal matrix and gradient, ``(A, b, kept share)``, each over the kept rays' count (:func:`track`).
+
+    ``M3`` maps the control points to the samples' coordinates, ``MJ`` the node increments to them.
+    """
     import scipy.sparse as sp
 
     sample, origin, direction = rays
@@ -254,7 +258,7 @@ def _ray_rows(graph, V, R, M3, X, rays, trim: float):
     r = np.einsum("rab,rb->ra", P, q - origin)
     dist = np.linalg.norm(r, axis=1)
     keep = np.flatnonzero(dist <= trim * np.median(dist) + 1e-12)
-    J = M3[np.ravel(3 * sample[keep, None] + np.arange(3))] @ _jacobian(graph, V, R)
+    J = MJ[np.ravel(3 * sample[keep, None] + np.arange(3))]
     k = len(keep)
     rows = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3)[:, None], (k, 3, 3))
     cols = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3), (k, 3, 3))
