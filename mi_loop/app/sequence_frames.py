@@ -108,8 +108,7 @@ class FrameFitter:
 
         o, n = run.options, len(run.x)
         self.run, self.photo, self.albedo_opt, self.saved_lighting = run, None, None, None
-        self.previous_views = None         # the last frame's photos (the optical-flow term)
-        self.views = None                  # this frame's photos
+        self.views = None                  # the latest frame's photos (the optical flow from them; silhouettes)
         photos = bool(run.sources.captures)
         if photos and o.image:
             self._albedo(saved)
@@ -164,13 +163,13 @@ class FrameFitter:
             views = read_views(run.sources.captures[t], t, frame)
             flow = None
             if (o.flow > 0 or self._track_flow()) and t > 0:    # the previous frame's photos, camera by camera
-                if self.previous_views is None:      # after a resume
+                if self.views is None:               # after a resume
                     from mi_loop.io.capture import read_capture
 
-                    self.previous_views = list(read_capture(run.sources.captures[t - 1]).views)
-                if len(self.previous_views) == len(views):
-                    flow = (self.previous_views, views)
-            self.previous_views = self.views = views
+                    self.views = list(read_capture(run.sources.captures[t - 1]).views)
+                if len(self.views) == len(views):
+                    flow = (self.views, views)
+            self.views = views
             if self.photo is None or not self.photo.set_photos(views):    # kept while the cameras stay
                 self.photo = ImageRenderer(run.norm.inverse(run.x), run.F, views, run.lights, albedo=run.albedo,
                                            level=o.level, spp=o.spp, deterministic=o.deterministic,

@@ -250,14 +250,12 @@ def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0
     origin, direction : (r, 3) float64 NumPy arrays
         The rays' origins (fit units) and unit directions.
     """
+    from mi_loop.fitting.track import limit_samples
     from mi_loop.subdiv.masks import limit_mesh
 
     scale, centre = float(to_world[0]), np.asarray(to_world[1], dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
-    M, Mu, Mv = matrices
-    N = np.cross(Mu @ x, Mv @ x)
-    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    Q, N = limit_samples(matrices, x)
     surface = limit_mesh(x * scale + centre, F, level=2)[0]
-    sample, origin, direction = flow_rays(flow_correspondences(previous, current, (M @ x) * scale + centre, N,
-                                                               surface))
+    sample, origin, direction = flow_rays(flow_correspondences(previous, current, Q * scale + centre, N, surface))
     return sample, (origin - centre) / scale, direction

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DeformationGraph", "anchor_weights", "in_silhouettes", "track"]
+__all__ = ["DeformationGraph", "anchor_weights", "in_silhouettes", "limit_samples", "track"]
 
 
 def _skew(a):
@@ -205,19 +205,17 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         Q, idx, ok = _correspondences(matrices, X, tree, normals, trim)
         keep = np.flatnonzero(ok)
         C, Nc = points[idx[keep]], normals[idx[keep]]
-        MJ = M3 @ _jacobian(graph, V, R)                                                 # (3k, 6g)
-        J = MJ[np.ravel(3 * keep[:, None] + np.arange(3))]                               # (3 kept, 6g)
+        G = _jacobian(graph, V, R)                                                       # (3n, 6g)
+        J = M3[np.ravel(3 * keep[:, None] + np.arange(3))] @ G                           # (3 kept, 6g)
         r = (Q[keep] - C)                                                                # (kept, 3)
         # point-to-plane rows: n_c^T J_s; point-to-point rows: sqrt(point) J_s
-        Nrows = sp.csr_matrix((Nc.ravel(), (np.repeat(np.arange(len(keep)), 3), np.arange(3 * len(keep)))),
-                              shape=(len(keep), 3 * len(keep)))
-        Jp = Nrows @ J
+        Jp = _dots(Nc) @ J
         rp = np.sum(Nc * r, axis=1)
         wfit = 1.0 / max(len(keep), 1)
         A = wfit * ((Jp.T @ Jp) + point * (J.T @ J)).toarray()
         rhs = -wfit * (Jp.T @ rp + point * (J.T @ r.ravel()))
         if rays is not None and len(rays[0]):
-            Ar, br, share = _ray_rows(M3, MJ, X, rays, trim)
+            Ar, br, share = _ray_rows(M3, G, Q, rays, trim)
             A += ray * Ar
             rhs -= ray * br
             info["rays"].append(share)
@@ -245,27 +243,30 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     return X, info
 
 
-def _ray_rows(M3, MJ, X, rays, trim: float):
-    """The rays' normal matrix and gradient, ``(A, b, kept share)``, each over the kept rays' count (:func:`track`).
-
-    ``M3`` maps the control points to the samples' coordinates, ``MJ`` the node increments to them.
-    """
+def _dots(U):
+    """The sparse ``(k, 3k)`` matrix taking stacked 3-vectors ``y`` to the dot products ``U_i . y_i``."""
     import scipy.sparse as sp
 
+    k = len(U)
+    return sp.csr_matrix((U.ravel(), (np.repeat(np.arange(k), 3), np.arange(3 * k))), shape=(k, 3 * k))
+
+
+def _ray_rows(M3, G, Q, rays, trim: float):
+    """The rays' normal matrix and gradient, ``(A, b, kept share)``, each over the kept rays' count (:func:`track`).
+
+    ``M3 @ G`` maps the node increments to the samples' coordinates, ``Q`` holds the samples. With
+    the projector ``P = I - d d^T`` (``P^T P = P``) a ray's block of the normal matrix is
+    ``J^T J - (d^T J)^T (d^T J)``, and its gradient ``J^T P (q - o)``.
+    """
     sample, origin, direction = rays
-    q = (M3[np.ravel(3 * sample[:, None] + np.arange(3))] @ X.ravel()).reshape(-1, 3)
-    P = np.eye(3) - direction[:, :, None] * direction[:, None, :]                     # (r, 3, 3) projectors
-    r = np.einsum("rab,rb->ra", P, q - origin)
+    r = Q[sample] - origin
+    r -= np.sum(r * direction, axis=1, keepdims=True) * direction                   # P (q - o)
     dist = np.linalg.norm(r, axis=1)
     keep = np.flatnonzero(dist <= trim * np.median(dist) + 1e-12)
-    J = MJ[np.ravel(3 * sample[keep, None] + np.arange(3))]
-    k = len(keep)
-    rows = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3)[:, None], (k, 3, 3))
-    cols = np.broadcast_to((3 * np.arange(k))[:, None, None] + np.arange(3), (k, 3, 3))
-    Pk = sp.csr_matrix((P[keep].ravel(), (rows.ravel(), cols.ravel())), shape=(3 * k, 3 * k))
-    Jr = Pk @ J
+    J = M3[np.ravel(3 * sample[keep, None] + np.arange(3))] @ G
+    Jd = _dots(direction[keep]) @ J
     w = 1.0 / max(len(keep), 1)
-    return w * (Jr.T @ Jr).toarray(), w * (Jr.T @ r[keep].ravel()), len(keep) / len(sample)
+    return w * (J.T @ J - Jd.T @ Jd).toarray(), w * (J.T @ r[keep].ravel()), len(keep) / len(sample)
 
 
 def _correspondences(matrices, X, tree, normals, trim: float):
@@ -274,15 +275,27 @@ def _correspondences(matrices, X, tree, normals, trim: float):
     A correspondence counts where the point's normal is within 60 degrees of the
     sample's limit normal and the distance within ``trim`` times the median of those.
     """
-    M, Mu, Mv = matrices
-    Q = M @ X
-    Nq = np.cross(Mu @ X, Mv @ X)
-    Nq /= np.maximum(np.linalg.norm(Nq, axis=1, keepdims=True), 1e-300)
+    Q, Nq = limit_samples(matrices, X)
     dist, idx = tree.query(Q, workers=-1)
     ok = np.sum(normals[idx] * Nq, axis=1) > 0.5
     if ok.any():
         ok &= dist <= trim * np.median(dist[ok]) + 1e-12
     return Q, idx, ok
+
+
+def limit_samples(matrices, X):
+    """``(Q, N)``: the limit samples of control points ``X`` and their unit normals, ``(k, 3)`` each.
+
+    Parameters
+    ----------
+    matrices : (P, Du, Dv) scipy.sparse matrices
+        ``(k, n)`` limit positions and derivatives of the samples (:func:`mi_loop.limit_matrix`).
+    X : (n, 3) float NumPy array
+        Control points.
+    """
+    M, Mu, Mv = matrices
+    N = np.cross(Mu @ X, Mv @ X)
+    return M @ X, N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
 
 
 def anchor_weights(M, held, lower: float = 0.5, upper: float = 0.9):
