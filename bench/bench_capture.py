@@ -55,9 +55,9 @@ def load() -> str:
     return "load {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
-def command(seq: str, config: str, out: Path, extra: list) -> list:
+def command(seq: str, config: str, out: Path, extra: list, captures: Path = CAPTURES) -> list:
     """The ``mi-loop fit-sequence`` command line of one run."""
-    src = CAPTURES / seq
+    src = captures / seq
     cmd = [str(ROOT / ".venv" / "bin" / "mi-loop"), "-q", "fit-sequence", str(src / "depth"), "-o", str(out),
            "--reference", str(src / "clean.npz"), "--vertices", "1000"]
     for arg in CONFIGS[config]:
@@ -74,7 +74,7 @@ def fit_part(args):
                 continue
             if out.exists():
                 subprocess.run(["rm", "-rf", str(out)], check=True)
-            cmd = command(seq, config, out, shlex.split(args.extra))
+            cmd = command(seq, config, out, shlex.split(args.extra), args.captures)
             if args.frames:
                 cmd += ["--frames", args.frames]
             print(" ".join(cmd), f"[{load()}]", flush=True)
@@ -135,6 +135,8 @@ def main():
     fit.add_argument("--frames", default=None, help="--frames START:STOP:STEP of fit-sequence")
     fit.add_argument("--extra", default="", help="more fit-sequence arguments")
     fit.add_argument("--force", action="store_true")
+    fit.add_argument("--captures", type=Path, default=CAPTURES,
+                     help="where capture_sequence.py wrote the captures (its --out)")
     table = sub.add_parser("table")
     table.add_argument("--seq", nargs="+", default=["spot", "fox", "fox_tex"])
     table.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=list(CONFIGS))

@@ -232,8 +232,12 @@ def _camera_json(cam, **extra) -> dict:
             "width": cam.width, "height": cam.height}
 
 
-def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = None, log=print) -> Path:
-    """Write the simulated capture of sequence ``name`` to ``out/name``; return that directory."""
+def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = None, log=print,
+                           rgb_res: int = RGB["width"]) -> Path:
+    """Write the simulated capture of sequence ``name`` to ``out/name``; return that directory.
+
+    ``rgb_res``: width and height of the photos (the field of view stays).
+    """
     from mi_loop.render.cameras import fibonacci_cameras
 
     start = time.perf_counter()
@@ -245,7 +249,7 @@ def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = No
         colors = captures.procedural_albedo(Vs[0])
     depth_cams = depth_cameras(**DEPTH)
     rgb_cams = fibonacci_cameras(RGB["n"], [0, 0, 0], RGB["distance"], fov_x_deg=RGB["fov_x_deg"],
-                                 width=RGB["width"], height=RGB["height"])
+                                 width=rgb_res, height=rgb_res)
     margins = {"depth": frame_margin(depth_cams, Vs), "rgb": frame_margin(rgb_cams, Vs)}
     log(f"{name}: {len(Vs)} frames, {Vs.shape[1]} vertices, {len(F)} faces; smallest margin to the image "
         f"border {margins['depth']:.1f} px (depth), {margins['rgb']:.1f} px (RGB)")
@@ -266,7 +270,8 @@ def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = No
         "depth": {**DEPTH, "noise": "Gaussian along the ray", "sigma": SIGMA,
                   "seed": "default_rng([seed, frame, camera])", "normals": False,
                   "cameras": [_camera_json(c, azimuth=a) for c, a in zip(depth_cams, DEPTH["azimuths"])]},
-        "rgb": {**RGB, "spp": SPP, "integrator": "direct", "emitters": "DEFAULT_EMITTERS (constant, radiance 1)",
+        "rgb": {**RGB, "width": rgb_res, "height": rgb_res,
+                "spp": SPP, "integrator": "direct", "emitters": "DEFAULT_EMITTERS (constant, radiance 1)",
                 "albedo": albedo, "seed": "seed + frame * n + view"},
         "seed": SEED, "margin_px": margins, "seen_radius": SEEN_RADIUS, "per_frame": stats,
         "seconds": time.perf_counter() - start,
@@ -284,12 +289,13 @@ def main() -> None:
     parser.add_argument("sequences", nargs="+", choices=sorted(SEQUENCES))
     parser.add_argument("--frames", type=int, default=None, help="only the first N frames")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--rgb-res", type=int, default=RGB["width"], help="photo width and height (default 128)")
     args = parser.parse_args()
     mi_loop.set_variant()
     failed = []
     for name in args.sequences:
         try:
-            write_sequence_capture(name, args.out, args.frames)
+            write_sequence_capture(name, args.out, args.frames, rgb_res=args.rgb_res)
         except RuntimeError as exc:
             print(exc, file=sys.stderr)
             failed.append(name)
