@@ -78,6 +78,7 @@ class Run:
         self.graph = DeformationGraph(first.rest, self.F, spacing=spacing)
         self.diag = float(np.linalg.norm(np.ptp(self.R[0], axis=0)))
         self.attachment = attach_points(self.limit(first.x), self.R[0])
+        self._frames = {}
 
     def limit(self, x):
         """Limit points of the control vertices of ``x`` (unit box), in the reference's units."""
@@ -89,18 +90,19 @@ class Run:
         """``(k, 3)`` drift vectors of control points ``x`` at frame ``t``, percent of the diagonal."""
         return 100.0 * (self.limit(x) - self.attachment.points(self.R[t])) / self.diag
 
-    def frame(self, t: int, x_previous):
-        """Frame ``t``'s points in the unit box and their normals, estimated and oriented as ``fit-sequence`` does."""
-        from scipy.spatial import cKDTree
+    def frame(self, t: int):
+        """Frame ``t``'s points in the unit box and their normals, estimated and oriented by the run's fit of ``t-1``
+        as ``fit-sequence`` does; computed once per frame."""
+        from types import SimpleNamespace
 
+        from mi_loop.app.sequence_frames import _orient
         from mi_loop.mesh.points import estimate_normals
-        from mi_loop.subdiv.masks import limit_mesh
 
-        P = (self.R[t] - self.centre) / self.scale
-        N = estimate_normals(self.R[t])
-        Vl, _, Nl = limit_mesh(x_previous, self.F, level=1)
-        _, i = cKDTree(Vl).query(P, workers=-1)
-        return P, np.where((np.sum(N * Nl[i], axis=1) < 0)[:, None], -N, N)
+        if t not in self._frames:
+            P = (self.R[t] - self.centre) / self.scale
+            self._frames[t] = P, _orient(SimpleNamespace(x=self.states[t - 1].x, F=self.F), P,
+                                         estimate_normals(self.R[t]))
+        return self._frames[t]
 
 
 def mean_norm(d) -> float:
@@ -117,7 +119,7 @@ def coarse(run: Run, frames, options: dict, predict: float = 0.0) -> None:
     added = []
     for t in frames:
         x = run.states[t - 1].x
-        P, N = run.frame(t, x)
+        P, N = run.frame(t)
         t0 = time.perf_counter()
         if predict and t >= 2:                # the control points' last motion once more: also the graph's rest
             x = x + predict * (x - run.states[t - 2].x)
@@ -165,7 +167,7 @@ def oracle(run: Run, frames, options: dict) -> None:
     print("|---|---|---|")
     for t in frames:
         x = run.states[t - 1].x
-        P, N = run.frame(t, x)
+        P, N = run.frame(t)
         tree = cKDTree(P)
         start = mean_norm(run.drift(x, t - 1))
         true = driven(x, t, attach_points(run.limit(x), run.R[t - 1]))    # each limit point's own material point
@@ -206,7 +208,9 @@ def where(run: Run, t: int, cell: float = 0.2, rows: int = 12) -> None:
         m = inverse == c
         if m.sum() >= 5:
             found.append((mean_norm(d[m]), int(m.sum()), L0[m].mean(0), d[m].mean(0), motion[m].mean(0)))
-    fmt = lambda v, p: "(" + ", ".join(f"{a:+.{p}f}" for a in v) + ")"       # noqa: E731
+    def fmt(v, p):
+        return "(" + ", ".join(f"{a:+.{p}f}" for a in v) + ")"
+
     for size, count, centre, vector, moved in sorted(found, key=lambda r: -r[0])[:rows]:
         print(f"| {fmt(centre, 2)} | {count} | {size:.2f} | {fmt(vector, 2)} | {fmt(moved, 2)} |")
 
