@@ -229,7 +229,8 @@ def cost_part(args):
         dr.enable_grad(x)
         R = arap.rotations(np.array(x, dtype=np.float64).reshape(-1, 3))
         Q = op.positions(x)
-        E = imls.energy(Q, reduce="mean") + options.cover * cover.energy(Q) + alpha * arap.energy(x, R)
+        E = (imls.energy(Q, reduce="mean") + options.cover_weight(mesh_frame=True) * cover.energy(Q)
+             + alpha * arap.energy(x, R))
         dr.backward(E)
         dr.eval(dr.grad(x))
 

@@ -126,7 +126,7 @@ class FrameFitter:
             from mi_loop.fitting.sequence import Rig
 
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
-        terms = (["IMLS", "coverage"] if o.cover > 0 else ["IMLS"]) if o.geometric else []
+        terms = (["IMLS", "coverage"] if o.cover != 0 else ["IMLS"]) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]

@@ -7,7 +7,8 @@ Per frame ``t`` the control points ``V`` take Adam steps on the sum of the gradi
           + fold mean_j max(0, 1/2 - n_j . n_j^{t-1})^2 + image term,
 
 ``f_t`` the IMLS function of the frame's points (partial, noisy depth, or
-samples of a mesh frame), ``E_cover`` the coverage term, ARAP relative to the
+samples of a mesh frame), ``E_cover`` the coverage term (by default weighted 3 on a mesh frame, 0.3 on a
+point cloud: :meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`), ARAP relative to the
 previous frame's fit (the warm start) and to the template (so that the cage
 cannot drift into folds over a long sequence), a barrier on limit normals
 that turned by more than 60 degrees since the previous frame's fit (a fold
@@ -453,8 +454,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     if options.geometric:
         imls = IMLS(points, normals, max_growths=options.reach)
         parts.append(terms.Distance(imls, op, facing=op.derivatives))
-        if options.cover > 0:
-            parts.append(terms.Coverage(Coverage(points, normals, tree=imls.tree), op, options.cover,
+        cover = options.cover_weight(mesh_frame=complete)
+        if cover > 0:
+            parts.append(terms.Coverage(Coverage(points, normals, tree=imls.tree), op, cover,
                                         facing=op.derivatives))
         # Step from the residual of the warm start (as in static fitting), capped by lr.
         Q0 = op.positions(x)

@@ -19,7 +19,7 @@ from mi_loop.app.cli import main
 from mi_loop.io.capture import View, write_capture
 from mi_loop.io.emitters import DEFAULT_EMITTERS
 from mi_loop.mesh.geometry import vertex_normals
-from mi_loop.mesh.sampling import sample_surface
+from mi_loop.mesh.sampling import closest_points, sample_surface
 from mi_loop.render.cameras import fibonacci_cameras
 from mi_loop.render.captures import render_views
 
@@ -69,10 +69,11 @@ def rows(out):
 
 
 def back_error(out, t):
-    """Mean |r - R_t| over the limit points of frame ``t`` on the side depth never saw (z < -0.1)."""
-    V, _ = io.read_mesh(out / "limit" / f"{t:04d}.ply")
-    back = V[:, 2] < -0.1
-    return float(np.abs(np.linalg.norm(V[back], axis=1) - RADII[t]).mean())
+    """Mean distance from the clean sphere's side that depth never saw (its vertices at z < -0.1) to the limit
+    surface of frame ``t``: also where a fit has no surface left there (a back pulled up to the seen cap)."""
+    V, F = io.read_mesh(out / "limit" / f"{t:04d}.ply")
+    Vs, _ = sphere_frames()
+    return float(closest_points(V, F, Vs[t][Vs[t][:, 2] < -0.1])[0].mean())
 
 
 @pytest.fixture(scope="module")

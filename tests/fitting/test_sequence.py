@@ -40,6 +40,26 @@ def test_fit_frame_geometric_terms_pull_a_small_sphere_onto_the_target():
     assert V.shape == V0.shape and np.isfinite(V).all()
 
 
+def test_the_default_coverage_weight_is_3_on_mesh_frames_and_0_3_on_point_clouds():
+    """cover=None gives the same fit as the weight of the frame's kind given explicitly, and not the other's."""
+    V0, F = sphere_mesh(0.4, 1)
+    Vt, Ft = sphere_mesh(0.5, 3)
+    P, N, _ = sample_surface(Vt, Ft, 3000, seed=0)
+    op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
+
+    def fit(mesh_frame, cover=None):
+        options = SequenceOptions(image=False, iterations=20, cover=cover)
+        return fit_frame(V0, F, P, N, op, None, options, frame=0, lr=0.02 * mean_edge_length(V0, F),
+                         complete=mesh_frame)[0]
+
+    for mesh_frame, own, other in ((True, 3.0, 0.3), (False, 0.3, 3.0)):
+        default = fit(mesh_frame)
+        assert np.array_equal(default, fit(mesh_frame, own)), mesh_frame
+        assert np.abs(default - fit(mesh_frame, other)).max() > 1e-4, mesh_frame
+    assert SequenceOptions(cover=1.0).cover_weight(mesh_frame=False) == 1.0
+    assert SequenceOptions(cover=0.0).cover_weight(mesh_frame=True) == 0.0
+
+
 def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
     """geometric=False: silhouettes of a 0.45 sphere grow a 0.3 control sphere (limit ~0.27)."""
     V0, F = sphere_mesh(0.3, 1)
