@@ -7,12 +7,12 @@ Per frame ``t`` the control points ``V`` take Adam steps on the sum of the gradi
           + fold mean_j max(0, 1/2 - n_j . n_j^{t-1})^2 + image term,
 
 ``f_t`` the IMLS function of the frame's points (partial, noisy depth, or
-samples of a mesh frame), ``E_cover`` the coverage term (by default weighted 3 on a mesh frame, 0.3 on a
-point cloud: :meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`), ARAP relative to the
+samples of a mesh frame), ``E_cover`` the coverage term, ARAP relative to the
 previous frame's fit (the warm start) and to the template (so that the cage
 cannot drift into folds over a long sequence), a barrier on limit normals
 that turned by more than 60 degrees since the previous frame's fit (a fold
-in the making), and the image term: mean L1
+in the making; by default ``cover`` is 3 and ``fold`` 0.01 on a mesh frame, 0.3 and 1 on a point cloud:
+:meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`, ``fold_weight``), and the image term: mean L1
 between ``direct_projective`` renders of the limit surface (``loop_subdiv``,
 exact limit normals) and the frame's photos (with a per-control-vertex albedo,
 estimated on the first frame and refined slowly after) or renders of a mesh
@@ -448,8 +448,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         else:
             hold = terms.Tangential(x0, N0, POINTS_HOLD * options.tangential, held)
         parts.append(hold)
-    if options.fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
-        parts.append(terms.Fold(op, options.fold, reference=normals0, opaque=True))
+    fold = options.fold_weight(mesh_frame=complete)
+    if fold > 0 and op.derivatives:   # the previous frame's limit normals: barrier against turning over
+        parts.append(terms.Fold(op, fold, reference=normals0, opaque=True))
     imls = None
     if options.geometric:
         imls = IMLS(points, normals, max_growths=options.reach)

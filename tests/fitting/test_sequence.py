@@ -6,6 +6,7 @@ in tests/app/test_sequence_job.py, the renderer in tests/render/test_images.py.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mi_loop.ad.operator import LimitOperator
 from mi_loop.fitting.options import SequenceOptions
@@ -40,24 +41,31 @@ def test_fit_frame_geometric_terms_pull_a_small_sphere_onto_the_target():
     assert V.shape == V0.shape and np.isfinite(V).all()
 
 
-def test_the_default_coverage_weight_is_3_on_mesh_frames_and_0_3_on_point_clouds():
-    """cover=None gives the same fit as the weight of the frame's kind given explicitly, and not the other's."""
-    V0, F = sphere_mesh(0.4, 1)
-    Vt, Ft = sphere_mesh(0.5, 3)
-    P, N, _ = sample_surface(Vt, Ft, 3000, seed=0)
-    op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "vertices"), derivatives=False)
+@pytest.mark.parametrize("name, mesh_default, points_default, fixed", [("cover", 3.0, 0.3, {}),
+                                                                        ("fold", 0.01, 1.0, {"cover": 3.0})])
+def test_the_coverage_and_fold_weights_default_by_the_kind_of_frame(name, mesh_default, points_default, fixed):
+    """None gives the same fit as the weight of the frame's kind given explicitly, and not the other kind's.
 
-    def fit(mesh_frame, cover=None):
-        options = SequenceOptions(image=False, iterations=20, cover=cover)
+    The fold case fixes the coverage weight: the coverage pulls the surface into the dent, where the
+    normals turn by more than 60 degrees and the barrier acts."""
+    V0, F = sphere_mesh(0.4, 2)
+    Vt, Ft = sphere_mesh(0.5, 4)
+    u = Vt / np.linalg.norm(Vt, axis=1, keepdims=True)
+    Vt = u * (0.5 - 0.35 * np.exp(-((1 - u[:, 2]) / 0.2) ** 2))[:, None]     # a deep dent: its walls turn normals
+    P, N, _ = sample_surface(Vt, Ft, 4000, seed=0)
+    op = LimitOperator(F, len(V0), *sample_parameters(F, len(V0), "level1"), derivatives=True)
+
+    def fit(mesh_frame, weight=None):
+        options = SequenceOptions(image=False, iterations=60, **fixed, **{name: weight})
         return fit_frame(V0, F, P, N, op, None, options, frame=0, lr=0.02 * mean_edge_length(V0, F),
                          complete=mesh_frame)[0]
 
-    for mesh_frame, own, other in ((True, 3.0, 0.3), (False, 0.3, 3.0)):
+    for mesh_frame, own, other in ((True, mesh_default, points_default), (False, points_default, mesh_default)):
         default = fit(mesh_frame)
         assert np.array_equal(default, fit(mesh_frame, own)), mesh_frame
-        assert np.abs(default - fit(mesh_frame, other)).max() > 1e-4, mesh_frame
-    assert SequenceOptions(cover=1.0).cover_weight(mesh_frame=False) == 1.0
-    assert SequenceOptions(cover=0.0).cover_weight(mesh_frame=True) == 0.0
+        assert np.abs(default - fit(mesh_frame, other)).max() > 1e-3, mesh_frame
+    weight = getattr(SequenceOptions(**{name: 0.5}), f"{name}_weight")        # given: every frame's
+    assert weight(mesh_frame=False) == weight(mesh_frame=True) == 0.5
 
 
 def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
