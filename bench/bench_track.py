@@ -19,7 +19,12 @@ its ``state/NNNN.npz``, ``sequence.json``) and the points in correspondence
    too): the drift each adds, and the point-to-plane residual each leaves. Where
    the true motion leaves the larger residual, the data prefer the slide; where
    the stage started there stays there with a smaller residual than the stage from
-   ``t-1``, the stage's rest (the previous fit) is what holds it off the true motion;
+   ``t-1``, the stage's rest (the previous fit) is what holds it off the true motion.
+   The last column is the stage's own energy (its data term and its stiffness term at
+   the last step) for the graph moved by the true motion and by the stage: where the
+   true motion costs more, the stage's prior, not its optimisation, prefers the slide.
+   ``--truth W`` is the weight pulling the graph onto the material points (1e4: onto
+   each one, their noise too; 1: their smooth motion);
 3. **the parts of the run's drift**, per frame: along the fit's normal and along
    the surface, and their mean vectors (a slide common to the whole body shows
    there);
@@ -142,17 +147,34 @@ def residual(run: Run, X, P, N, tree) -> float:
     return 1000.0 * run.scale * float(np.sqrt(np.mean(np.sum(N[idx[k]] * (Q[k] - P[idx[k]]), axis=1) ** 2)))
 
 
-def oracle(run: Run, frames, options: dict) -> None:
-    """The graph driven by the true motion: control-vertex limit points pulled onto their material points."""
+def energy(run: Run, V, X, info, P, N, tree, stiffness: float = 0.1, point: float = 0.1) -> tuple:
+    """``(data, stiffness part)`` of :func:`~mi_loop.fitting.track.track`'s energy at its last step (stiffness 0.1),
+    for the graph on control points ``V`` moved to ``X`` by ``info``'s node motions; correspondences found at ``X``."""
+    from mi_loop.fitting.track import _correspondences
+
+    Q, idx, ok = _correspondences(run.matrices, X, tree, N, 3.0)
+    k = np.flatnonzero(ok)
+    r = Q[k] - P[idx[k]]
+    data = float(np.mean(np.sum(N[idx[k]] * r, axis=1) ** 2 + point * np.sum(r * r, axis=1)))
+    g, (a, b) = V[run.graph.nodes], run.graph.edges.T
+    R, t = info["R"], info["t"]
+    rr = np.einsum("eab,eb->ea", R[a], g[b] - g[a]) + g[a] + t[a] - g[b] - t[b]
+    return data, stiffness * float(np.mean(np.sum(rr * rr, axis=1)))
+
+
+def oracle(run: Run, frames, options: dict, truth: float = 1e4) -> None:
+    """The graph driven by the true motion: control-vertex limit points pulled onto their material points with
+    point-to-point weight ``truth`` (against stiffness 0.1: large, the graph follows every material point)."""
     from scipy.spatial import cKDTree
 
     from mi_loop.fitting.track import limit_samples, track
     from mi_loop.metrics import attach_points
 
-    def driven(x, t, attachment):
+    def driven(x, t, attachment, info=False):
         target = (attachment.points(run.R[t]) - run.centre) / run.scale
-        return track(run.graph, x, run.vertex, target, limit_samples(run.vertex, x)[1], point=1e4, trim=1e9,
-                     stiff=(0.1, 0.1))[0]
+        result = track(run.graph, x, run.vertex, target, limit_samples(run.vertex, x)[1], point=truth, trim=1e9,
+                       stiff=(0.1, 0.1))
+        return result if info else result[0]
 
     print("\n### The graph's floor: driven by the true motion from frame 0\n")
     x = run.states[0].x
@@ -163,18 +185,24 @@ def oracle(run: Run, frames, options: dict) -> None:
     print("drift mean %, frame: " + ", ".join(cells))
     print("\n### From the run's fit of frame t-1: the true motion against the coarse stage\n")
     print("| frame | drift added: true motion / stage / stage started at the true motion | "
-          "residual mm: the same three / start |")
-    print("|---|---|---|")
+          "residual mm: the same three / start | stage energy x 1e6, data + stiffness: true motion / stage |")
+    print("|---|---|---|---|")
     for t in frames:
         x = run.states[t - 1].x
         P, N = run.frame(t)
         tree = cKDTree(P)
         start = mean_norm(run.drift(x, t - 1))
-        true = driven(x, t, attach_points(run.limit(x), run.R[t - 1]))    # each limit point's own material point
-        three = [true] + [track(run.graph, y, run.matrices, P, N, tree, **options)[0] for y in (x, true)]
+        true, true_info = driven(x, t, attach_points(run.limit(x), run.R[t - 1]), info=True)   # own material points
+        stage, stage_info = track(run.graph, x, run.matrices, P, N, tree, **options)
+        three = [true, stage, track(run.graph, true, run.matrices, P, N, tree, **options)[0]]
         added = " / ".join(f"{mean_norm(run.drift(y, t)) - start:+.3f}" for y in three)
         left = " / ".join(f"{residual(run, y, P, N, tree):.3f}" for y in three + [x])
-        print(f"| {t} | {added} | {left} |", flush=True)
+        kw = {k: options[k] for k in ("point",) if k in options}
+        if "stiff" in options:
+            kw["stiffness"] = options["stiff"][1]
+        energies = " / ".join("{:.3f} + {:.3f}".format(*(1e6 * e for e in energy(run, x, y, i, P, N, tree, **kw)))
+                              for y, i in ((true, true_info), (stage, stage_info)))
+        print(f"| {t} | {added} | {left} | {energies} |", flush=True)
 
 
 def parts(run: Run) -> None:
@@ -228,6 +256,8 @@ def main():
     ap.add_argument("--predict", type=float, default=0.0, help="start each frame's stage (and put the graph's rest) "
                     "at x_(t-1) + PREDICT (x_(t-1) - x_(t-2)), the run's fits")
     ap.add_argument("--oracle", action="store_true", help="also the graph driven by the true motion")
+    ap.add_argument("--truth", type=float, default=1e4, help="with --oracle: the weight that pulls the graph onto "
+                    "the material points (default %(default)s: it follows them all, their noise too)")
     ap.add_argument("--where", type=int, default=None, help="the regions of largest drift at this frame")
     args = ap.parse_args()
     run = Run(args.run, args.ref, args.spacing)
@@ -237,7 +267,7 @@ def main():
                                  ("steps", args.steps)) if v is not None}
     coarse(run, frames, options, args.predict)
     if args.oracle:
-        oracle(run, frames, {})
+        oracle(run, frames, {}, args.truth)
     parts(run)
     if args.where is not None:
         where(run, args.where)

@@ -180,8 +180,8 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     info : dict
         ``residual`` (RMS point-to-plane distance of the kept correspondences, per step),
         ``kept`` (their share of the samples, per step), ``rays`` (the share of the rays kept, per
-        step) and ``held`` ((k,) bool: the samples whose correspondence counts at the returned control
-        points; :func:`anchor_weights`).
+        step), ``held`` ((k,) bool: the samples whose correspondence counts at the returned control
+        points; :func:`anchor_weights`) and the nodes' motions ``R`` ((g, 3, 3)) and ``t`` ((g, 3)).
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -240,6 +240,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         info["kept"].append(len(keep) / len(Q))
     X = graph.deform(V, R, t)
     info["held"] = _correspondences(matrices, X, tree, normals, trim)[2]
+    info["R"], info["t"] = R, t
     return X, info
 
 
