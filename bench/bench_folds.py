@@ -14,6 +14,7 @@ Usage::
     .venv/bin/python bench/bench_folds.py                         # dragon_20k, bunny, fandisk, penguin; seeds 0 1
     .venv/bin/python bench/bench_folds.py --meshes dragon_20k --seeds 0
     .venv/bin/python bench/bench_folds.py --meshes dragon_20k penguin --folds default   # the default fit only
+    .venv/bin/python bench/bench_folds.py --meshes dragon_20k --folds default --cover 0.3
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def load() -> str:
     return "load avg " + " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def run(name: str, fold: float | None, seed: int) -> list:
+def run(name: str, fold: float | None, seed: int, cover: float | None = None) -> list:
     from mi_loop.fitting.options import FitOptions
     from mi_loop.fitting.static import fit
     from mi_loop.io import read_mesh
@@ -39,7 +40,7 @@ def run(name: str, fold: float | None, seed: int) -> list:
     path = STATIC / f"{name}.obj"
     V, F = read_mesh(path)
     P, N, _ = load_oriented_points(path, seed=seed)      # the seed draws the samples too: the spread
-    kw = {} if fold is None else {"fold": fold}
+    kw = ({} if fold is None else {"fold": fold}) | ({} if cover is None else {"cover": cover})
     t = time.perf_counter()
     r = fit(P, N, FitOptions(n_vertices=1000, seed=seed, **kw), mesh=(V, F))
     seconds = time.perf_counter() - t
@@ -57,6 +58,7 @@ def main(argv=None) -> None:
     ap.add_argument("--meshes", nargs="+", default=["dragon_20k", "bunny", "fandisk", "penguin"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--folds", nargs="+", default=["0", "default"], help="barrier weights: 0 and/or default")
+    ap.add_argument("--cover", type=float, default=None, help="the coverage weight of every fit (default: fit()'s)")
     args = ap.parse_args(argv)
 
     import mi_loop
@@ -75,7 +77,7 @@ def main(argv=None) -> None:
     for name in args.meshes:
         for seed in args.seeds:
             for fold in (None if f == "default" else float(f) for f in args.folds):
-                print("| " + " | ".join(run(name, fold, seed)) + " |", flush=True)
+                print("| " + " | ".join(run(name, fold, seed, args.cover)) + " |", flush=True)
 
 
 if __name__ == "__main__":
