@@ -126,8 +126,9 @@ class FrameFitter:
             from mi_loop.fitting.sequence import Rig
 
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
-        terms = (["IMLS", "coverage"] if o.cover != 0 else ["IMLS"]) if o.geometric else []
+        terms = (["IMLS"] + _weighted(o, "cover", "coverage")) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
+        terms += _weighted(o, "fold", "fold barrier")
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
         if o.image:
@@ -297,6 +298,15 @@ class FrameFitter:
             extra |= {"light_coefficients": np.array(dr.detach(self.photo.lighting.coefficients)),
                       "light_log_gain": np.array(dr.detach(self.photo.lighting.log_gain))}
         return extra
+
+
+def _weighted(o, field: str, term: str) -> list:
+    """``[term with its weight]`` for the log line (by the kind of frame where the weight is the default), or ``[]``."""
+    weight = getattr(o, f"{field}_weight")
+    mesh, points = weight(mesh_frame=True), weight(mesh_frame=False)
+    if mesh == points:
+        return [f"{mesh:g} x {term}"] if mesh > 0 else []
+    return [f"{term} ({mesh:g} x on mesh frames, {points:g} x on point clouds)"]
 
 
 def fit_frames(run: SequenceRun, first, fitter: FrameFitter, log) -> list:

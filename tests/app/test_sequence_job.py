@@ -477,6 +477,8 @@ def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, 
             "--iterations", "60", "--points", "2000"])
     err = capsys.readouterr().err
     assert "point-cloud frames without --images: no surface to render, so the image term is off" in err
+    assert ("terms: IMLS + coverage (3 x on mesh frames, 0.3 x on point clouds) + ARAP + ARAP to the template + "
+            "fold barrier (0.01 x on mesh frames, 1 x on point clouds)\n") in err       # the defaults by kind
     rows = read_rows(out)
     assert [int(r["frame"]) for r in rows] == [0, 1]
     assert all(float(r["time_render"]) == 0 for r in rows)
@@ -484,6 +486,12 @@ def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, 
         V_lim, _ = io.read_mesh(out / "limit" / f"{t:04d}.ply")
         np.testing.assert_allclose(np.linalg.norm(V_lim, axis=1).mean(), 1.0 + 0.05 * t, rtol=0.02)
         assert float(r["mean"]) < 0.01
+
+
+def test_the_log_names_the_weights_given(inputs, tmp_path, capsys):
+    run_ok(["fit-sequence", str(point_frames(tmp_path)), "-o", str(tmp_path / "out"), "--template", str(inputs[1]),
+            "--frames", "0:1", "--first-iterations", "2", "--cover", "2", "--fold", "0", "--alpha-rest", "0"])
+    assert "terms: IMLS + 2 x coverage + ARAP\n" in capsys.readouterr().err
 
 
 def test_sequence_json_records_the_options_the_run_used(inputs, tmp_path, capsys, monkeypatch):
