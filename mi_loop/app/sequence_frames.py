@@ -110,6 +110,11 @@ class FrameFitter:
         self.run, self.photo, self.albedo_opt, self.saved_lighting = run, None, None, None
         self.views = None                  # the latest frame's photos (the optical flow from them; silhouettes)
         photos = bool(run.sources.captures)
+        if photos:       # the photos' lighting: of the image term, and of the pictures (also with --no-image)
+            from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
+
+            emitters = run.sources.emitters
+            run.lights = read_emitters(emitters) if emitters is not None else [dict(e) for e in DEFAULT_EMITTERS]
         if photos and o.image:
             self._albedo(saved)
         fid, uv = sample_parameters(run.F, n, o.samples, o.seed)
@@ -137,13 +142,10 @@ class FrameFitter:
         log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}")
 
     def _albedo(self, saved: dict) -> None:
-        """The photos' lighting, and the albedo (0.5 grey, or restored with its optimiser's state)."""
+        """The albedo (0.5 grey, or restored with its optimiser's state), and the estimated lighting's saved state."""
         from mi_loop.fitting.optimisers import Adam
-        from mi_loop.io.emitters import DEFAULT_EMITTERS, read_emitters
 
         run = self.run
-        emitters = run.sources.emitters
-        run.lights = read_emitters(emitters) if emitters is not None else [dict(e) for e in DEFAULT_EMITTERS]
         run.albedo = np.full((len(run.x), 3), 0.5)
         self.albedo_opt = Adam()
         if "albedo" in saved:

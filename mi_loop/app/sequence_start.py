@@ -27,7 +27,8 @@ __all__ = ["HULL_RESOLUTION", "IMAGE_OFF", "Start", "begin", "settle_options"]
 #: Voxels along each side of the first frame's visual hull (thin legs need about 100).
 HULL_RESOLUTION = 128
 #: What the log says when point-cloud frames without photos turn the image term off.
-IMAGE_OFF = "point-cloud frames without --images: no surface to render, so the image term is off (the geometric terms only)"
+IMAGE_OFF = ("point-cloud frames without --images: no surface to render, so the image term is off "
+             "(the geometric terms only)")
 _RESUME = "fit-sequence --resume"
 
 

@@ -112,6 +112,18 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, ph
     assert options["track"] == 4 and options["track_flow"] == 1.0
 
 
+def test_photos_for_the_template_only_still_give_the_photo_strip(capture, tmp_path):
+    """``--images`` with ``--no-image``: the photos shape the template only, and the pictures compare the fit
+    with them, lit by the default emitters (the image term, which would set the lighting, is off)."""
+    depth, images, _ = capture
+    out = tmp_path / "out"
+    assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "-o", str(out), "--frames", "0:2",
+                 "--no-image", *FAST]) == 0
+    assert (out / "strip.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (out / "report.html").is_file()
+    assert [int(r["frame"]) for r in rows(out)] == [0, 1]
+    assert all(float(r["time_render"]) == 0 for r in rows(out))            # no image term in the frames
+
+
 def test_a_photo_run_writes_albedo_metrics_and_pictures(photo_run):
     r = rows(photo_run)
     assert [int(x["frame"]) for x in r] == [0, 1, 2]
