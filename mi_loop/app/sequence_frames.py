@@ -131,7 +131,8 @@ class FrameFitter:
             from mi_loop.fitting.sequence import Rig
 
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
-        terms = (["IMLS"] + _weighted(o, "cover", "coverage")) if o.geometric else []
+        cover = o.cover_weight(mesh_frame=False, photos=photos and o.image)      # the point clouds' weight
+        terms = (["IMLS"] + _weighted(o, "cover", "coverage", cover)) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
         terms += _weighted(o, "fold", "fold barrier")
         if o.image and photos and o.flow > 0:
@@ -181,7 +182,7 @@ class FrameFitter:
             pixel = sequence.pixel_size(self.photo.cameras, run.norm.centre, run.norm.scale)
             return sequence.FrameImages(self.photo, run.albedo, lr, self.albedo_opt,
                                         (run.norm.scale, run.norm.centre), pixel, light_lr=o.light_lr,
-                                        exposure=o.exposure, flow=flow)
+                                        exposure=o.exposure, flow=flow, photos=True)
         if self.rig is not None and frame.mesh is not None:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
@@ -302,10 +303,11 @@ class FrameFitter:
         return extra
 
 
-def _weighted(o, field: str, term: str) -> list:
-    """``[term with its weight]`` for the log line (by the kind of frame where the weight is the default), or ``[]``."""
+def _weighted(o, field: str, term: str, points: float | None = None) -> list:
+    """``[term with its weight]`` for the log line (by the kind of frame where the weight is the default), or ``[]``;
+    ``points``: the weight on point clouds, where it is not the option's ``weight(mesh_frame=False)``."""
     weight = getattr(o, f"{field}_weight")
-    mesh, points = weight(mesh_frame=True), weight(mesh_frame=False)
+    mesh, points = weight(mesh_frame=True), weight(mesh_frame=False) if points is None else points
     if mesh == points:
         return [f"{mesh:g} x {term}"] if mesh > 0 else []
     return [f"{term} ({mesh:g} x on mesh frames, {points:g} x on point clouds)"]

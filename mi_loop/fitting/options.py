@@ -59,10 +59,11 @@ LIGHT_LR_HELP = "Adam step of the estimated lighting and gains (default %(defaul
 N_VERTICES = 1000     # control vertices of the automatic template
 SAMPLES = "level1"    # the points of a level-1 tessellation: about 4x the control vertices
 COVER = 3.0           # weight of the coverage term (data points pull their nearest samples)
-#: fit-sequence's coverage weight on point-cloud frames (mesh frames keep :data:`COVER`). On D-FAUST the
-#: pulls of 100,000 points crease the shoulders: 0.37 % of the area flipped at frame 0 against 0.06 % at 0.3,
-#: the surface 1 % farther (later frames up to 40 % farther, where 3 creases its way closer); the clean fox's
-#: mesh frames need 3 (21/24 frames within target against 8/24).
+#: fit-sequence's coverage weight on point-cloud frames without photos (mesh frames and photos keep :data:`COVER`).
+#: On D-FAUST the pulls of 100,000 points crease the shoulders: 0.37 % of the area flipped at frame 0 against
+#: 0.06 % at 0.3, the surface 1 % farther (later frames up to 40 % farther, where 3 creases its way closer). The
+#: clean fox's mesh frames need 3 (21/24 frames within target against 8/24), and so do the captures' depth with
+#: photos (without ``--track`` the spot capture's last mean is 65 % larger at 0.3).
 POINTS_COVER = 0.3
 FOLD = 0.01           # weight of the fold barrier: the static fit's, and fit-sequence's on mesh frames
 #: fit-sequence's fold-barrier weight on point-cloud frames (against the previous frame's limit normals). On
@@ -230,8 +231,8 @@ class SequenceOptions:
     stiff_factor : float
         ARAP weight factor for the first half of the iterations.
     cover : float or None
-        Weight of the coverage term; None (default): :data:`COVER` on mesh frames,
-        :data:`POINTS_COVER` on point clouds (:meth:`cover_weight`).
+        Weight of the coverage term; None (default): :data:`COVER` on mesh frames and with photos,
+        :data:`POINTS_COVER` on point clouds without (:meth:`cover_weight`).
     albedo_lr : float
         Adam step of the per-control-vertex albedo on the first frame (photos only).
     albedo_refine : float
@@ -329,10 +330,11 @@ class SequenceOptions:
     stiff_factor: float = option(100.0, rule=WEIGHT,
                                  help="factor of the ARAP weights in the first half of a frame's iterations "
                                       "(default %(default)s)")
-    cover: float | None = option(None, rule=WEIGHT.or_none(f"{COVER:g} on mesh frames, {POINTS_COVER:g} on point "
-                                                            "clouds"),
+    cover: float | None = option(None, rule=WEIGHT.or_none(f"{COVER:g} on mesh frames and with --images, "
+                                                            f"{POINTS_COVER:g} on point clouds without"),
                                  help=f"weight of the coverage term: data points pull their nearest limit samples "
-                                      f"(default: {COVER:g} on mesh frames, {POINTS_COVER:g} on point clouds; 0: off)")
+                                      f"(default: {COVER:g} on mesh frames and with --images, {POINTS_COVER:g} on "
+                                      f"point clouds without; 0: off)")
     albedo_lr: float = option(0.02, rule=WEIGHT,
                               help="Adam step of the per-control-vertex albedo on the first frame (with --images; "
                                    "default %(default)s; 0: not estimated)")
@@ -402,15 +404,18 @@ class SequenceOptions:
             return 3 * self.gn_iterations if first else self.gn_iterations
         return self.first_iterations if first else self.iterations
 
-    def cover_weight(self, mesh_frame: bool) -> float:
-        """A frame's coverage weight: ``cover``, or by default :data:`COVER` on a mesh frame, :data:`POINTS_COVER` else.
+    def cover_weight(self, mesh_frame: bool, photos: bool = False) -> float:
+        """A frame's coverage weight: ``cover``, or by default :data:`COVER` on a mesh frame or with photos,
+        :data:`POINTS_COVER` on a point cloud without.
 
         Parameters
         ----------
         mesh_frame : bool
             The frame is a mesh (its samples cover the whole surface, with exact normals).
+        photos : bool
+            The frame's image term fits photos.
         """
-        return _by_kind(self.cover, mesh_frame, COVER, POINTS_COVER)
+        return _by_kind(self.cover, mesh_frame or photos, COVER, POINTS_COVER)
 
     def fold_weight(self, mesh_frame: bool) -> float:
         """The fold-barrier weight of a frame: ``fold``, or :data:`FOLD` on a mesh frame, :data:`POINTS_FOLD` else.

@@ -11,7 +11,8 @@ samples of a mesh frame), ``E_cover`` the coverage term, ARAP relative to the
 previous frame's fit (the warm start) and to the template (so that the cage
 cannot drift into folds over a long sequence), a barrier on limit normals
 that turned by more than 60 degrees since the previous frame's fit (a fold
-in the making; by default ``cover`` is 3 and ``fold`` 0.01 on a mesh frame, 0.3 and 1 on a point cloud:
+in the making; by default ``cover`` is 3 and ``fold`` 0.01 on a mesh frame, 0.3 (3 with photos) and 1 on a
+point cloud:
 :meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`, ``fold_weight``), and the image term: mean L1
 between ``direct_projective`` renders of the limit surface (``loop_subdiv``,
 exact limit normals) and the frame's photos (with a per-control-vertex albedo,
@@ -180,6 +181,8 @@ class FrameImages:
     flow : (list of View, list of View) or None
         The photos of the previous frame and of this one, camera by camera:
         the optical-flow term's (``options.flow``, :mod:`mi_loop.fitting.flow`); None: no such term.
+    photos : bool
+        The targets are photos (False: renders of a mesh frame).
     """
 
     renderer: object
@@ -191,6 +194,7 @@ class FrameImages:
     light_lr: float = 0.0
     exposure: bool = True
     flow: tuple | None = None
+    photos: bool = False
 
 
 class Rig:
@@ -455,7 +459,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     if options.geometric:
         imls = IMLS(points, normals, max_growths=options.reach)
         parts.append(terms.Distance(imls, op, facing=op.derivatives))
-        cover = options.cover_weight(mesh_frame=complete)
+        cover = options.cover_weight(mesh_frame=complete, photos=images is not None and images.photos)
         if cover > 0:
             parts.append(terms.Coverage(Coverage(points, normals, tree=imls.tree), op, cover,
                                         facing=op.derivatives))

@@ -212,7 +212,8 @@ BAD_VALUES = {
     "a finite number >= 0": [("-1", "-1.0"), ("nan", "nan"), ("inf", "inf")],
     "a finite number > 0": [("0", "0.0"), ("-2", "-2.0")],
     "a finite number > 0 (or None: automatic)": [("0", "0.0"), ("nan", "nan")],
-    "a finite number >= 0 (or None: 3 on mesh frames, 0.3 on point clouds)": [("-0.5", "-0.5"), ("inf", "inf")],
+    ("a finite number >= 0 (or None: 3 on mesh frames and with --images, "
+     "0.3 on point clouds without)"): [("-0.5", "-0.5"), ("inf", "inf")],
     "a finite number >= 0 (or None: 0.01 on mesh frames, 1 on point clouds)": [("-1", "-1.0"), ("nan", "nan")],
     "an integer >= 0": [("-1", "-1")],
     "an integer >= 1": [("0", "0"), ("-3", "-3")],

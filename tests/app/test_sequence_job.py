@@ -431,7 +431,8 @@ def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, caps
 @pytest.mark.parametrize("flag, value, message", [
     ("--alpha", "-1", "expected a finite number >= 0, got -1.0"),
     ("--beta", "nan", "expected a finite number >= 0, got nan"),
-    ("--cover", "-0.5", "expected a finite number >= 0 (or None: 3 on mesh frames, 0.3 on point clouds), got -0.5"),
+    ("--cover", "-0.5", "expected a finite number >= 0 (or None: 3 on mesh frames and with --images, 0.3 on point "
+                        "clouds without), got -0.5"),
     ("--views", "0", "expected an integer >= 1, got 0"),
     ("--res", "0", "expected an integer >= 1, got 0"),
     ("--spp", "-2", "expected an integer >= 1, got -2"),

@@ -66,6 +66,9 @@ def test_the_coverage_and_fold_weights_default_by_the_kind_of_frame(name, mesh_d
         assert np.abs(default - fit(mesh_frame, other)).max() > 1e-3, mesh_frame
     weight = getattr(SequenceOptions(**{name: 0.5}), f"{name}_weight")        # given: every frame's
     assert weight(mesh_frame=False) == weight(mesh_frame=True) == 0.5
+    if name == "cover":                                                     # photos keep the mesh frames' weight
+        assert SequenceOptions().cover_weight(mesh_frame=False, photos=True) == 3.0
+        assert SequenceOptions(cover=0.5).cover_weight(mesh_frame=False, photos=True) == 0.5
 
 
 def test_fit_frame_image_only_grows_towards_a_larger_silhouette():
