@@ -97,17 +97,22 @@ def test_photos_hold_the_side_that_depth_never_sees(capture, photo_run, tmp_path
 
 
 @pytest.mark.slow
-def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, photo_run, tmp_path):
+def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tmp_path):
     """``--track`` with photos: the graph carries each frame on the depth and the flow's rays, and the
     strong hold (``--tangential 10``, weighed by the silhouettes) is along the surface only, so the side
-    depth never sees still grows with the photos, as close as without the coarse stage."""
+    depth never sees still grows with the photos, as close as without the coarse stage. Both runs are
+    ``--deterministic``: the image term's reverse render is otherwise not bit-reproducible, and the two
+    runs' back errors at frame 1 moved by up to 27 % from run to run (0.0070-0.0089 tracked)."""
     depth, images, clean = capture
-    out = tmp_path / "out"
+    out, untracked = tmp_path / "out", tmp_path / "untracked"
     assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
-                 "-o", str(out), "--track", "4", "--tangential", "10", "--track-flow", "1", *FAST]) == 0
+                 "-o", str(out), "--track", "4", "--tangential", "10", "--track-flow", "1", "--deterministic",
+                 *FAST]) == 0
+    assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
+                 "-o", str(untracked), "--deterministic", *FAST]) == 0
     for t in (1, 2):
-        assert back_error(out, t) < 0.02 * 2 * RADII[t], (t, back_error(out, t), back_error(photo_run, t))
-        assert back_error(out, t) < 1.5 * back_error(photo_run, t) + 0.002, (t, back_error(photo_run, t))
+        assert back_error(out, t) < 0.02 * 2 * RADII[t], (t, back_error(out, t), back_error(untracked, t))
+        assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
     options = json.loads((out / "sequence.json").read_text())["options"]
     assert options["track"] == 4 and options["track_flow"] == 1.0
 
