@@ -150,15 +150,13 @@ def residual(run: Run, X, P, N, tree) -> float:
 def energy(run: Run, V, X, info, P, N, tree, stiffness: float = 0.1, point: float = 0.1) -> tuple:
     """``(data, stiffness part)`` of :func:`~mi_loop.fitting.track.track`'s energy at its last step (stiffness 0.1),
     for the graph on control points ``V`` moved to ``X`` by ``info``'s node motions; correspondences found at ``X``."""
-    from mi_loop.fitting.track import _correspondences
+    from mi_loop.fitting.track import _correspondences, edge_residuals
 
     Q, idx, ok = _correspondences(run.matrices, X, tree, N, 3.0)
     k = np.flatnonzero(ok)
     r = Q[k] - P[idx[k]]
     data = float(np.mean(np.sum(N[idx[k]] * r, axis=1) ** 2 + point * np.sum(r * r, axis=1)))
-    g, (a, b) = V[run.graph.nodes], run.graph.edges.T
-    R, t = info["R"], info["t"]
-    rr = np.einsum("eab,eb->ea", R[a], g[b] - g[a]) + g[a] + t[a] - g[b] - t[b]
+    rr = edge_residuals(V[run.graph.nodes], run.graph.edges, info["R"], info["t"])[1]
     return data, stiffness * float(np.mean(np.sum(rr * rr, axis=1)))
 
 

@@ -131,10 +131,10 @@ class FrameFitter:
             from mi_loop.fitting.sequence import Rig
 
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
-        cover = o.cover_weight(mesh_frame=False, photos=photos and o.image)      # the point clouds' weight
-        terms = (["IMLS"] + _weighted(o, "cover", "coverage", cover)) if o.geometric else []
+        cover = o.cover_weight(mesh_frame=True), o.cover_weight(mesh_frame=False, photos=photos and o.image)
+        terms = (["IMLS"] + _weighted("coverage", *cover)) if o.geometric else []
         terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
-        terms += _weighted(o, "fold", "fold barrier")
+        terms += _weighted("fold barrier", o.fold_weight(mesh_frame=True), o.fold_weight(mesh_frame=False))
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
         if o.image:
@@ -303,11 +303,8 @@ class FrameFitter:
         return extra
 
 
-def _weighted(o, field: str, term: str, points: float | None = None) -> list:
-    """``[term with its weight]`` for the log line (by the kind of frame where the weight is the default), or ``[]``;
-    ``points``: the weight on point clouds, where it is not the option's ``weight(mesh_frame=False)``."""
-    weight = getattr(o, f"{field}_weight")
-    mesh, points = weight(mesh_frame=True), weight(mesh_frame=False) if points is None else points
+def _weighted(term: str, mesh: float, points: float) -> list:
+    """``[term with its weight]`` for the log line, by the kind of frame where the two differ; ``[]`` where it is 0."""
     if mesh == points:
         return [f"{mesh:g} x {term}"] if mesh > 0 else []
     return [f"{term} ({mesh:g} x on mesh frames, {points:g} x on point clouds)"]

@@ -86,13 +86,6 @@ TEMPLATE_HELP = "control vertices of the automatic template (default %(default)s
 SPP_HELP = "samples per pixel of the differentiable renders (default %(default)s)"
 
 
-def _by_kind(value: float | None, mesh_frame: bool, mesh: float, points: float) -> float:
-    """An option's value for a frame: ``value`` where given, else the default of the frame's kind."""
-    if value is not None:
-        return value
-    return mesh if mesh_frame else points
-
-
 @dataclass
 class FitOptions:
     """Parameters of the static fit :func:`mi_loop.fitting.static.fit` (``mi-loop fit``).
@@ -415,7 +408,9 @@ class SequenceOptions:
         photos : bool
             The frame's image term fits photos.
         """
-        return _by_kind(self.cover, mesh_frame or photos, COVER, POINTS_COVER)
+        if self.cover is not None:
+            return self.cover
+        return COVER if mesh_frame or photos else POINTS_COVER
 
     def fold_weight(self, mesh_frame: bool) -> float:
         """The fold-barrier weight of a frame: ``fold``, or :data:`FOLD` on a mesh frame, :data:`POINTS_FOLD` else.
@@ -425,7 +420,9 @@ class SequenceOptions:
         mesh_frame : bool
             The frame is a mesh.
         """
-        return _by_kind(self.fold, mesh_frame, FOLD, POINTS_FOLD)
+        if self.fold is not None:
+            return self.fold
+        return FOLD if mesh_frame else POINTS_FOLD
 
     #: Fields of older versions, ignored when read back (the image term no longer ends the frame).
     RETIRED = ("joint_iterations", "joint_lr_scale")

@@ -12,8 +12,8 @@ previous frame's fit (the warm start) and to the template (so that the cage
 cannot drift into folds over a long sequence), a barrier on limit normals
 that turned by more than 60 degrees since the previous frame's fit (a fold
 in the making; by default ``cover`` is 3 and ``fold`` 0.01 on a mesh frame, 0.3 (3 with photos) and 1 on a
-point cloud:
-:meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`, ``fold_weight``), and the image term: mean L1
+point cloud: :meth:`~mi_loop.fitting.options.SequenceOptions.cover_weight`, ``fold_weight``), and the image
+term: mean L1
 between ``direct_projective`` renders of the limit surface (``loop_subdiv``,
 exact limit normals) and the frame's photos (with a per-control-vertex albedo,
 estimated on the first frame and refined slowly after) or renders of a mesh

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DeformationGraph", "anchor_weights", "in_silhouettes", "limit_samples", "track"]
+__all__ = ["DeformationGraph", "anchor_weights", "edge_residuals", "in_silhouettes", "limit_samples", "track"]
 
 
 def _skew(a):
@@ -220,8 +220,7 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
             rhs -= ray * br
             info["rays"].append(share)
         # regulariser
-        Rg = np.einsum("eab,eb->ea", R[a], gnodes[b] - gnodes[a])
-        rr = Rg + gnodes[a] + t[a] - gnodes[b] - t[b]                                    # (e, 3)
+        Rg, rr = edge_residuals(gnodes, graph.edges, R, t)
         rows = np.arange(3 * e).reshape(e, 3)
         Jr_w = -_skew(Rg)                                                                # d/dw_a
         ri = np.concatenate([np.repeat(rows, 3, axis=1).ravel(), rows.ravel(), rows.ravel()])
@@ -242,6 +241,15 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
     info["held"] = _correspondences(matrices, X, tree, normals, trim)[2]
     info["R"], info["t"] = R, t
     return X, info
+
+
+def edge_residuals(nodes, edges, R, t):
+    """``(R_j (g_l - g_j), r_jl)``, ``(e, 3)`` each: the graph regulariser's residuals
+    ``r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l`` for node positions ``nodes`` ``(g, 3)``, node pairs
+    ``edges`` ``(e, 2)`` and node motions ``R`` ``(g, 3, 3)``, ``t`` ``(g, 3)``."""
+    a, b = edges[:, 0], edges[:, 1]
+    Rg = np.einsum("eab,eb->ea", R[a], nodes[b] - nodes[a])
+    return Rg, Rg + nodes[a] + t[a] - nodes[b] - t[b]
 
 
 def _dots(U):
