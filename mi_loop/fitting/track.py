@@ -244,9 +244,22 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
 
 
 def edge_residuals(nodes, edges, R, t):
-    """``(R_j (g_l - g_j), r_jl)``, ``(e, 3)`` each: the graph regulariser's residuals
-    ``r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l`` for node positions ``nodes`` ``(g, 3)``, node pairs
-    ``edges`` ``(e, 2)`` and node motions ``R`` ``(g, 3, 3)``, ``t`` ``(g, 3)``."""
+    """The graph regulariser's residuals ``r_jl = R_j (g_l - g_j) + g_j + t_j - g_l - t_l`` (:func:`track`).
+
+    Parameters
+    ----------
+    nodes : (g, 3) float NumPy array
+        Node positions ``g_j``.
+    edges : (e, 2) int NumPy array
+        Node pairs ``(j, l)``.
+    R, t : (g, 3, 3) and (g, 3) float NumPy arrays
+        Node rotations and translations.
+
+    Returns
+    -------
+    Rg, r : (e, 3) float NumPy arrays
+        ``R_j (g_l - g_j)`` and ``r_jl``.
+    """
     a, b = edges[:, 0], edges[:, 1]
     Rg = np.einsum("eab,eb->ea", R[a], nodes[b] - nodes[a])
     return Rg, Rg + nodes[a] + t[a] - nodes[b] - t[b]
