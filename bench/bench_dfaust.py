@@ -108,8 +108,10 @@ def write_one_sided(frames: list, out: Path) -> Path:
 
 def fit(frames_arg: Path, ref: Path, out: Path, solver: str, vertices: int, extra: str) -> list:
     """Run ``mi-loop fit-sequence``; its ``metrics.csv`` rows."""
+    extra = shlex.split(extra)
+    size = [] if "--template" in extra else ["--vertices", str(vertices)]
     cmd = [str(ROOT / ".venv" / "bin" / "mi-loop"), "-q", "fit-sequence", str(frames_arg), "--reference", str(ref),
-           "--vertices", str(vertices), "--solver", solver, "-o", str(out), *shlex.split(extra)]
+           *size, "--solver", solver, "-o", str(out), *extra]
     print("$", " ".join(cmd), flush=True)
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True)

@@ -100,10 +100,14 @@ def options_from_args(cls, args, command: str):
 
 
 def _no_template_to_build(args, command: str) -> None:
-    """``--poisson-template`` builds the template: refuse it with ``--template``."""
-    if args.template is not None and args.poisson_template:
-        raise ValueError(expected(f"{command} --poisson-template", "no --template (it builds the template)",
-                                  f"--template '{args.template}'"))
+    """``--poisson-template`` and ``--template-depth`` build the template: refuse them with ``--template``."""
+    if args.template is None:
+        return
+    for given, flag in ((args.poisson_template, "--poisson-template"), (args.template_depth is not None,
+                                                                       "--template-depth")):
+        if given:
+            raise ValueError(expected(f"{command} {flag}", "no --template (it builds the template)",
+                                      f"--template '{args.template}'"))
 
 
 def check_variant(name: str, command: str) -> None:

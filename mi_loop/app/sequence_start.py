@@ -233,14 +233,14 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
 
     A mesh frame is refined and decimated directly (:func:`mesh_template`),
     which keeps thin parts that a coarse Poisson octree loses; a point-cloud
-    frame, a mesh that is not a clean manifold, or ``poisson_template`` goes
+    frame, a mesh that is not a clean manifold, ``poisson_template`` or a ``template_depth`` goes
     through screened Poisson + decimation (:func:`make_template`), of the
     points and, with photos, of the visual hull where the points have holes
     (``hull``: the combined oriented points).
     """
     from mi_loop.fitting.template import make_template, mesh_template
 
-    if first.mesh is not None and not options.poisson_template:
+    if first.mesh is not None and not options.poisson_template and options.template_depth is None:
         try:
             x, F, _ = mesh_template(norm.forward(first.mesh[0]), first.mesh[1], options.n_vertices)
             log.say(f"template: first frame's mesh decimated to {len(x)} vertices")
@@ -249,9 +249,10 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
             log.say(f"template: first frame's mesh cannot be used ({exc}); screened Poisson instead")
     P, N = hull if hull is not None else (first.P, first.N)
     source = "poisson+hull" if hull is not None else "poisson"
-    log.say(f"template: screened Poisson{' of the points and the visual hull' if hull is not None else ''} "
+    depth = f" at depth {options.template_depth}" if options.template_depth is not None else ""
+    log.say(f"template: screened Poisson{' of the points and the visual hull' if hull is not None else ''}{depth} "
             f"+ decimation to {options.n_vertices} vertices")
-    x, F, _ = make_template(norm.forward(P), N, options.n_vertices, seed=options.seed)
+    x, F, _ = make_template(norm.forward(P), N, options.n_vertices, depth=options.template_depth, seed=options.seed)
     return x, F, {"source": source, "n_vertices": len(x), "n_faces": len(F)}
 
 

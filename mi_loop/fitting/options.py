@@ -244,6 +244,11 @@ class SequenceOptions:
         Points sampled on every mesh frame.
     poisson_template : bool
         Build the automatic template by screened Poisson even from a mesh frame.
+    template_depth : int or None
+        Octree depth of the automatic template's screened Poisson (4 to 10); None (default): from
+        ``n_vertices`` (:func:`mi_loop.fitting.template.poisson_depth`). Given, a mesh frame's template
+        is built by Poisson too. A dense scan of a body whose arms lie close to the torso needs 8: the
+        default 6 webs the armpits.
     deterministic : bool
         Bit-reproducible image term: the reverse render runs on one thread (slower).
     tolerance : float
@@ -348,6 +353,11 @@ class SequenceOptions:
                                 "point-cloud frames are used as they are")
     poisson_template: bool = option(False, rule=FLAG, help="build the automatic template by screened Poisson even "
                                                            "when the first frame is a mesh")
+    template_depth: int | None = option(None, rule=integers(4, 10).or_none("from --vertices"), metavar="D",
+                                        help="octree depth of the automatic template's screened Poisson (default: "
+                                             "6 up to 2000 --vertices, 7 up to 8000, 8 above; given, a mesh frame's "
+                                             "template is built by Poisson too; a dense scan of a body whose arms "
+                                             "lie close to the torso needs 8: 6 webs the armpits)")
     deterministic: bool = option(False, rule=FLAG, help="bit-reproducible image term: the reverse render runs on "
                                                         "one thread (slower)")
     tolerance: float = option(0.0, rule=WEIGHT,

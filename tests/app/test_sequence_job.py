@@ -421,11 +421,50 @@ def test_a_non_manifold_first_frame_falls_back_to_poisson(tmp_path, capsys):
     assert "template: screened Poisson + decimation to 120 vertices" in err
 
 
-def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, capsys):
+@pytest.mark.parametrize("flag", [["--poisson-template"], ["--template-depth", "8"]])
+def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, capsys, flag):
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
-                                   "--template", str(inputs[1]), "--poisson-template"])
-    assert line == ("mi-loop: error: fit-sequence --poisson-template: expected no --template (it builds the "
+                                   "--template", str(inputs[1]), *flag])
+    assert line == (f"mi-loop: error: fit-sequence {flag[0]}: expected no --template (it builds the "
                     f"template), got --template '{inputs[1]}'")
+
+
+def slotted_torus(gap: float, n: int = 40_000, R: float = 0.6, r: float = 0.2):
+    """Oriented points of a torus tube (radii ``R``, ``r``) cut by a slot ``gap`` wide, with its two end caps.
+
+    The genus says whether a template saw the slot: 0 where it keeps the two ends apart, 1 where
+    a coarse octree webs them together (what the default depth does to a body's armpits).
+    """
+    rng = np.random.default_rng(0)
+    half = gap / 2 / R
+    phi, theta = rng.uniform(half, 2 * np.pi - half, n), rng.uniform(0, 2 * np.pi, n)
+    radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], 1)
+    N = np.cos(theta)[:, None] * radial + np.sin(theta)[:, None] * np.array([0.0, 0.0, 1.0])
+    P, Ns = [R * radial + r * N], [N]
+    for side in (half, -half):           # the caps: disks across the tube, facing into the slot
+        m = n // 20
+        rho, a = r * np.sqrt(rng.uniform(0, 1, m)), rng.uniform(0, 2 * np.pi, m)
+        out, along = np.array([np.cos(side), np.sin(side), 0.0]), np.array([-np.sin(side), np.cos(side), 0.0])
+        P.append(R * out + rho[:, None] * (np.cos(a)[:, None] * out + np.sin(a)[:, None] * np.array([0, 0, 1.0])))
+        Ns.append(np.tile(-np.sign(side) * along, (m, 1)))
+    return np.vstack(P), np.vstack(Ns)
+
+
+def test_template_depth_opens_a_narrow_slot_that_the_default_depth_webs(tmp_path, capsys):
+    from mi_loop.mesh.geometry import euler_characteristic
+
+    P, N = slotted_torus(0.03)
+    np.savetxt(tmp_path / "0000.xyz", np.hstack([P, N]))
+    genus = {}
+    for depth in (None, 8):
+        out = tmp_path / f"out{depth}"
+        run_ok(["fit-sequence", str(tmp_path / "0000.xyz"), "-o", str(out), "--vertices", "300", "--no-image",
+                "--first-iterations", "5", *([] if depth is None else ["--template-depth", str(depth)])])
+        err = capsys.readouterr().err
+        assert f"template: screened Poisson{'' if depth is None else f' at depth {depth}'} + decimation" in err
+        Vc, Fc = io.read_mesh(out / "control" / "0000.ply")
+        genus[depth] = (2 - euler_characteristic(len(Vc), Fc)[0]) // 2
+    assert genus == {None: 1, 8: 0}
 
 
 @pytest.mark.parametrize("flag, value, message", [
