@@ -487,3 +487,24 @@ def blob_capture(directory):
     views = render_views(P, F, cams, [dict(e) for e in DEFAULT_EMITTERS], normals=N,
                          colors=np.clip(0.5 + P, 0.1, 0.8), spp=8)
     return write_capture(directory, views)
+
+
+def slotted_torus(gap: float, n: int = 40_000, R: float = 0.6, r: float = 0.2):
+    """Oriented points of a torus tube (radii ``R``, ``r``) cut by a slot ``gap`` wide, with its two end caps.
+
+    The genus says whether a template saw the slot: 0 where it keeps the two ends apart, 1 where
+    a coarse octree webs them together (what the default depth does to a body's armpits).
+    """
+    rng = np.random.default_rng(0)
+    half = gap / 2 / R
+    phi, theta = rng.uniform(half, 2 * np.pi - half, n), rng.uniform(0, 2 * np.pi, n)
+    radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], 1)
+    N = np.cos(theta)[:, None] * radial + np.sin(theta)[:, None] * np.array([0.0, 0.0, 1.0])
+    P, Ns = [R * radial + r * N], [N]
+    for side in (half, -half):           # the caps: disks across the tube, facing into the slot
+        m = n // 20
+        rho, a = r * np.sqrt(rng.uniform(0, 1, m)), rng.uniform(0, 2 * np.pi, m)
+        out, along = np.array([np.cos(side), np.sin(side), 0.0]), np.array([-np.sin(side), np.cos(side), 0.0])
+        P.append(R * out + rho[:, None] * (np.cos(a)[:, None] * out + np.sin(a)[:, None] * np.array([0, 0, 1.0])))
+        Ns.append(np.tile(-np.sign(side) * along, (m, 1)))
+    return np.vstack(P), np.vstack(Ns)

@@ -103,8 +103,9 @@ def _no_template_to_build(args, command: str) -> None:
     """``--poisson-template`` and ``--template-depth`` build the template: refuse them with ``--template``."""
     if args.template is None:
         return
-    for given, flag in ((args.poisson_template, "--poisson-template"), (args.template_depth is not None,
-                                                                       "--template-depth")):
+    for given, flag in ((args.poisson_template, "--poisson-template"),
+                        (args.template_depth is not None, "--template-depth"),
+                        (args.template_genus is not None, "--template-genus")):
         if given:
             raise ValueError(expected(f"{command} {flag}", "no --template (it builds the template)",
                                       f"--template '{args.template}'"))

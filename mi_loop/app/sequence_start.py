@@ -233,10 +233,12 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
 
     A mesh frame is refined and decimated directly (:func:`mesh_template`),
     which keeps thin parts that a coarse Poisson octree loses; a point-cloud
-    frame, a mesh that is not a clean manifold, ``poisson_template`` or a ``template_depth`` goes
-    through screened Poisson + decimation (:func:`make_template`), of the
-    points and, with photos, of the visual hull where the points have holes
-    (``hull``: the combined oriented points).
+    frame, a mesh that is not a clean manifold, ``poisson_template`` or a
+    ``template_depth`` goes through screened Poisson + decimation
+    (:func:`make_template`), of the points and, with photos, of the visual
+    hull where the points have holes (``hull``: the combined oriented points).
+    With ``template_genus``, either template has its handles beyond that genus
+    cut (:func:`mi_loop.mesh.handles.cut_handles`).
     """
     from mi_loop.fitting.template import make_template, mesh_template
 
@@ -244,6 +246,7 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
         try:
             x, F, _ = mesh_template(norm.forward(first.mesh[0]), first.mesh[1], options.n_vertices)
             log.say(f"template: first frame's mesh decimated to {len(x)} vertices")
+            x, F = _cut_handles(x, F, options.template_genus, log)
             return x, F, {"source": "mesh", "n_vertices": len(x), "n_faces": len(F)}
         except ValueError as exc:
             log.say(f"template: first frame's mesh cannot be used ({exc}); screened Poisson instead")
@@ -253,7 +256,22 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
     log.say(f"template: screened Poisson{' of the points and the visual hull' if hull is not None else ''}{depth} "
             f"+ decimation to {options.n_vertices} vertices")
     x, F, _ = make_template(norm.forward(P), N, options.n_vertices, depth=options.template_depth, seed=options.seed)
+    x, F = _cut_handles(x, F, options.template_genus, log)
     return x, F, {"source": source, "n_vertices": len(x), "n_faces": len(F)}
+
+
+def _cut_handles(x, F, genus, log):
+    """The template with its handles beyond ``genus`` cut (None: as it is); the log says how many."""
+    from mi_loop.mesh.geometry import euler_characteristic
+    from mi_loop.mesh.handles import cut_handles
+
+    if genus is None or euler_characteristic(len(x), F)[1]:       # an open template keeps its topology
+        return x, F
+    x, F, loops = cut_handles(x, F, genus)
+    if loops:
+        log.say(f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
+                f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")
+    return x, F
 
 
 def _hull_points(first, views, log):

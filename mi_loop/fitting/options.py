@@ -249,6 +249,9 @@ class SequenceOptions:
         ``n_vertices`` (:func:`mi_loop.fitting.template.poisson_depth`). Given, a mesh frame's template
         is built by Poisson too. A dense scan of a body whose arms lie close to the torso needs 8: the
         default 6 webs the armpits.
+    template_genus : int or None
+        The subject's genus: the automatic template's shortest handle loops are cut until it has
+        this many (:func:`mi_loop.mesh.handles.cut_handles`); None (default): as built.
     deterministic : bool
         Bit-reproducible image term: the reverse render runs on one thread (slower).
     tolerance : float
@@ -358,6 +361,10 @@ class SequenceOptions:
                                              "6 up to 2000 --vertices, 7 up to 8000, 8 above; given, a mesh frame's "
                                              "template is built by Poisson too; a dense scan of a body whose arms "
                                              "lie close to the torso needs 8: 6 webs the armpits)")
+    template_genus: int | None = option(None, rule=at_least(0).or_none("as built"), metavar="G",
+                                        help="the subject's genus (a body: 0): the automatic template's shortest "
+                                             "handle loops are cut and capped until it has this many, where a fine "
+                                             "--template-depth joins parts that touch (default: as built)")
     deterministic: bool = option(False, rule=FLAG, help="bit-reproducible image term: the reverse render runs on "
                                                         "one thread (slower)")
     tolerance: float = option(0.0, rule=WEIGHT,

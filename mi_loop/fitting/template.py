@@ -34,6 +34,7 @@ import numpy as np
 
 from mi_loop.fitting.slivers import remove_slivers
 from mi_loop.mesh.geometry import connected_components, euler_characteristic, face_areas, largest_component, weld
+from mi_loop.mesh.handles import cut_handles
 from mi_loop.mesh.topology import validate_mesh
 
 __all__ = ["FEATURE_ANGLE", "feature_template", "make_template", "mesh_template", "poisson_depth"]
@@ -79,7 +80,8 @@ def poisson_depth(n_vertices: int) -> int:
 
 def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0,
                   min_angle: float = 10.0, threads: int = 1, max_points: int = 500_000, *,
-                  point_weight: float = 4.0, samples_per_node: float = 1.5, zero_normals: str = "raise"):
+                  point_weight: float = 4.0, samples_per_node: float = 1.5, zero_normals: str = "raise",
+                  genus: int | None = None):
     """Reconstruct a closed manifold triangle control mesh with about ``n_vertices`` vertices.
 
     Parameters
@@ -111,6 +113,11 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
         to estimate normals), or drop its point (points a program derived,
         such as a visual hull's, where a few may have no orientation);
         ``info["dropped_normals"]`` counts them.
+    genus : int or None, optional
+        The subject's genus: a closed template with more handles has its shortest handle loops cut
+        and capped until it has this many (:func:`mi_loop.mesh.handles.cut_handles`: where a fine
+        octree joins two parts that touch, such as an arm resting on the torso). None (default):
+        the genus the Poisson surface has.
 
     Returns
     -------
@@ -123,7 +130,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     info : dict
         ``depth``, ``n_points``, ``poisson_vertices`` (largest component),
         ``poisson_components``, ``dropped_normals``, ``vertices``, ``faces``, ``genus`` (None if open),
-        ``boundary_edges`` (0: closed),
+        ``boundary_edges`` (0: closed), ``handles_cut`` (the lengths of the loops cut, normalised units),
         ``min_angle`` (degrees, achieved), ``flips``, ``collapses``,
         ``time_poisson``, ``time_decimate``, ``time_cleanup``, ``time_total``
         (seconds).
@@ -147,6 +154,8 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     """
     t0 = time.perf_counter()
     P, N, n_vertices, depth, dropped = _check_inputs(P, N, n_vertices, depth, min_angle, max_points, zero_normals)
+    if genus is not None and (isinstance(genus, bool) or not isinstance(genus, (int, np.integer)) or genus < 0):
+        _fail(f"genus must be an integer >= 0 or None, got {genus!r}")
     if len(P) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(P), max_points, replace=False))
         P, N = P[keep], N[keep]
@@ -161,12 +170,17 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     if _agreement(V, F, P, N) < 0:
         F = F[:, ::-1].copy()
     V, F, _ = validate_mesh(V, F, "make_template")
+    loops = []
+    if genus is not None and euler_characteristic(len(V), F)[1] == 0:    # closed: cut the handles beyond it
+        V, F, loops = cut_handles(V, F, genus)
+        if loops:
+            V, F, _ = validate_mesh(V, F, "make_template")
     t3 = time.perf_counter()
     chi, n_boundary = euler_characteristic(len(V), F)
     info = {"depth": depth, "point_weight": float(point_weight), "samples_per_node": float(samples_per_node),
             "n_points": len(P), "dropped_normals": dropped, "poisson_vertices": len(Vp), "poisson_components": n_comp,
             "vertices": len(V), "faces": len(F), "genus": (2 - chi) // 2 if n_boundary == 0 else None,
-            "boundary_edges": n_boundary,
+            "boundary_edges": n_boundary, "handles_cut": loops,
             "min_angle": stats["min_angle"], "flips": stats["flips"], "collapses": stats["collapses"],
             "time_poisson": t1 - t0, "time_decimate": t2 - t1, "time_cleanup": t3 - t2,
             "time_total": t3 - t0}

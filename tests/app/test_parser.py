@@ -222,6 +222,7 @@ BAD_VALUES = {
     "an integer in 0..4": [("5", "5"), ("-1", "-1")],
     "an integer in 0..6": [("7", "7")],
     "an integer in 4..10 (or None: from --vertices)": [("3", "3"), ("11", "11")],
+    "an integer >= 0 (or None: as built)": [("-1", "-1")],
     "an integer in 0..10": [("11", "11")],
     "a number in [0, 1]": [("1.5", "1.5"), ("-0.1", "-0.1")],
     "a number in (0, 1]": [("0", "0.0"), ("1.5", "1.5")],

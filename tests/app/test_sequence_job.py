@@ -21,7 +21,7 @@ from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.fitting.options import SequenceOptions
 
-from helpers import REPO, one_line_error, parse_glb, sphere_mesh
+from helpers import REPO, one_line_error, parse_glb, slotted_torus, sphere_mesh
 
 #: Options of a quick run: 4 views of 24x24 pixels, 2 spp, 20 iterations per frame (30 for the first),
 #: an image refresh every 10, 2000 points.
@@ -421,7 +421,7 @@ def test_a_non_manifold_first_frame_falls_back_to_poisson(tmp_path, capsys):
     assert "template: screened Poisson + decimation to 120 vertices" in err
 
 
-@pytest.mark.parametrize("flag", [["--poisson-template"], ["--template-depth", "8"]])
+@pytest.mark.parametrize("flag", [["--poisson-template"], ["--template-depth", "8"], ["--template-genus", "0"]])
 def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, capsys, flag):
     line = one_line_error(capsys, ["fit-sequence", str(inputs[0]), "-o", str(tmp_path / "out"),
                                    "--template", str(inputs[1]), *flag])
@@ -429,42 +429,24 @@ def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, caps
                     f"template), got --template '{inputs[1]}'")
 
 
-def slotted_torus(gap: float, n: int = 40_000, R: float = 0.6, r: float = 0.2):
-    """Oriented points of a torus tube (radii ``R``, ``r``) cut by a slot ``gap`` wide, with its two end caps.
-
-    The genus says whether a template saw the slot: 0 where it keeps the two ends apart, 1 where
-    a coarse octree webs them together (what the default depth does to a body's armpits).
-    """
-    rng = np.random.default_rng(0)
-    half = gap / 2 / R
-    phi, theta = rng.uniform(half, 2 * np.pi - half, n), rng.uniform(0, 2 * np.pi, n)
-    radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], 1)
-    N = np.cos(theta)[:, None] * radial + np.sin(theta)[:, None] * np.array([0.0, 0.0, 1.0])
-    P, Ns = [R * radial + r * N], [N]
-    for side in (half, -half):           # the caps: disks across the tube, facing into the slot
-        m = n // 20
-        rho, a = r * np.sqrt(rng.uniform(0, 1, m)), rng.uniform(0, 2 * np.pi, m)
-        out, along = np.array([np.cos(side), np.sin(side), 0.0]), np.array([-np.sin(side), np.cos(side), 0.0])
-        P.append(R * out + rho[:, None] * (np.cos(a)[:, None] * out + np.sin(a)[:, None] * np.array([0, 0, 1.0])))
-        Ns.append(np.tile(-np.sign(side) * along, (m, 1)))
-    return np.vstack(P), np.vstack(Ns)
-
-
-def test_template_depth_opens_a_narrow_slot_that_the_default_depth_webs(tmp_path, capsys):
+def test_template_depth_opens_a_narrow_slot_that_the_default_depth_webs_and_template_genus_cuts_it(tmp_path, capsys):
     from mi_loop.mesh.geometry import euler_characteristic
 
     P, N = slotted_torus(0.03)
     np.savetxt(tmp_path / "0000.xyz", np.hstack([P, N]))
-    genus = {}
-    for depth in (None, 8):
-        out = tmp_path / f"out{depth}"
+    genus, cut = {}, {}
+    runs = [("default", []), ("depth 8", ["--template-depth", "8"]), ("genus 0", ["--template-genus", "0"])]
+    for name, flags in runs:
+        out = tmp_path / name.replace(" ", "")
         run_ok(["fit-sequence", str(tmp_path / "0000.xyz"), "-o", str(out), "--vertices", "300", "--no-image",
-                "--first-iterations", "5", *([] if depth is None else ["--template-depth", str(depth)])])
+                "--first-iterations", "5", *flags])
         err = capsys.readouterr().err
-        assert f"template: screened Poisson{'' if depth is None else f' at depth {depth}'} + decimation" in err
+        assert f"template: screened Poisson{' at depth 8' if name == 'depth 8' else ''} + decimation" in err
+        cut[name] = "template: 1 handle cut to genus 0 (loops" in err
         Vc, Fc = io.read_mesh(out / "control" / "0000.ply")
-        genus[depth] = (2 - euler_characteristic(len(Vc), Fc)[0]) // 2
-    assert genus == {None: 1, 8: 0}
+        genus[name] = (2 - euler_characteristic(len(Vc), Fc)[0]) // 2
+    assert genus == {"default": 1, "depth 8": 0, "genus 0": 0}
+    assert cut == {"default": False, "depth 8": False, "genus 0": True}
 
 
 @pytest.mark.parametrize("flag, value, message", [

@@ -13,7 +13,7 @@ from mi_loop.fitting.slivers import angles, remove_slivers
 from mi_loop.fitting.template import make_template, mesh_template, poisson_depth
 from mi_loop.io.points import load_oriented_points
 
-from helpers import DATA, sphere_mesh, sphere_points
+from helpers import DATA, slotted_torus, sphere_mesh, sphere_points
 
 BUNNY_SCAN = DATA / "scans" / "bunny_rangescans_merged_stride3.ply"
 
@@ -142,6 +142,19 @@ def test_errors(unit_sphere):
         make_template(P, P, 100, min_angle=30)
     with pytest.raises(ValueError, match="max_points must be at least 1000"):
         make_template(P, P, 100, max_points=10)
+    with pytest.raises(ValueError, match=r"^make_template\(\): genus must be an integer >= 0 or None, got -1$"):
+        make_template(P, P, 100, genus=-1)
+
+
+def test_a_template_webbed_across_a_slot_is_cut_back_to_the_genus_asked():
+    P, N = slotted_torus(0.03)
+    _, F, info = make_template(P, N, 300)                       # depth 6: the slot is webbed, a handle
+    assert info["genus"] == 1 and info["handles_cut"] == []
+    V, F, info = make_template(P, N, 300, genus=0)
+    assert info["genus"] == 0 and len(info["handles_cut"]) == 1
+    mi_loop.validate_mesh(V, F)
+    # the loop cut goes round the tube (girth 2 pi 0.2 = 1.26), not round the ring (2 pi 0.4 at least)
+    assert info["handles_cut"][0] < 1.5
 
 
 # -- templates from a mesh -------------------------------------------------------
