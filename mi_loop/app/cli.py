@@ -100,10 +100,11 @@ def options_from_args(cls, args, command: str):
 
 
 def _no_template_to_build(args, command: str) -> None:
-    """``--poisson-template`` and ``--template-depth`` build the template: refuse them with ``--template``."""
+    """``--poisson-template``, ``--template-depth`` and ``--template-genus`` build the template: refuse them with
+    ``--template``."""
     if args.template is None:
         return
-    for given, flag in ((args.poisson_template, "--poisson-template"),
+    for given, flag in ((getattr(args, "poisson_template", False), "--poisson-template"),
                         (args.template_depth is not None, "--template-depth"),
                         (args.template_genus is not None, "--template-genus")):
         if given:
@@ -173,6 +174,7 @@ def _fit(args, log) -> None:
     from mi_loop.app import fit_job
 
     options = options_from_args(FitOptions, args, "fit")
+    _no_template_to_build(args, "fit")
     if args.demo == (args.input is not None):
         raise ValueError(expected("fit INPUT", "an input file or --demo (one of them)",
                                   "both" if args.demo else "neither"))
@@ -198,8 +200,7 @@ def _fit_batch(args, log) -> None:
     from mi_loop.app import batch_job
 
     options = options_from_args(SequenceOptions if args.sequences else FitOptions, args, "fit-batch")
-    if args.sequences:
-        _no_template_to_build(args, "fit-batch")
+    _no_template_to_build(args, "fit-batch")
     check_variant(args.variant, "fit-batch")
     batch_job.run(args.inputs, args.output, options, scheduler=args.scheduler, workers=args.workers,
                   template=args.template, variant=args.variant, frames=getattr(args, "frame_range", None), log=log,

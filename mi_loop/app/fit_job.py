@@ -85,6 +85,10 @@ def _fit(P, N, template, options: FitOptions, log, mesh=None):
                 f"above {tinfo['feature_angle']:g} degrees), {tinfo['creases']} crease edges on the control mesh")
     elif options.features == "auto" and mesh is not None:
         log.say("sharp features: none found (no feature curve of at least 5 % of the diagonal)")
+    if tinfo.get("handles_cut"):
+        from mi_loop.app.inputs import handles_line
+
+        log.say(handles_line(tinfo["handles_cut"], options.template_genus))
     noise = result.info["noise"]
     log.say(f"noise: {noise['sigma_diagonal']:.2e} of the diagonal, {noise['ratio']:.2f} x the point spacing; "
             f"ARAP weight {result.params['alpha']:g} ({noise['alpha']})")

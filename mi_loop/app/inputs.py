@@ -17,8 +17,8 @@ import numpy as np
 from mi_loop import io
 from mi_loop.errors import expected
 
-__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "load_input",
-           "read_template"]
+__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "handles_line",
+           "load_input", "read_template"]
 
 #: A template's bounding-box diagonal must be within this factor of the data's.
 MAX_SIZE_RATIO = 2.0
@@ -240,3 +240,9 @@ class FrameReader:
         if frame.faces is not None:
             return ("mesh", frame.vertices, frame.faces)
         return ("points", frame.vertices, frame.normals)
+
+
+def handles_line(loops, genus: int) -> str:
+    """The log line of a template whose handles were cut: how many, to what genus, the loops' lengths."""
+    return (f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
+            f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")

@@ -262,6 +262,7 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
 
 def _cut_handles(x, F, genus, log):
     """The template with its handles beyond ``genus`` cut (None: as it is); the log says how many."""
+    from mi_loop.app.inputs import handles_line
     from mi_loop.mesh.geometry import euler_characteristic
     from mi_loop.mesh.handles import cut_handles
 
@@ -269,8 +270,7 @@ def _cut_handles(x, F, genus, log):
         return x, F
     x, F, loops = cut_handles(x, F, genus)
     if loops:
-        log.say(f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
-                f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")
+        log.say(handles_line(loops, genus))
     return x, F
 
 

@@ -84,6 +84,14 @@ SEED_HELP = "random seed: of {} (default %(default)s); {}the same seed, input an
 COVER_HELP = "weight of the coverage term: data points pull their nearest limit samples (default %(default)s; 0: off)"
 TEMPLATE_HELP = "control vertices of the automatic template (default %(default)s)"
 SPP_HELP = "samples per pixel of the differentiable renders (default %(default)s)"
+TEMPLATE_DEPTH = integers(4, 10).or_none("from --vertices")
+TEMPLATE_DEPTH_HELP = ("octree depth of the automatic template's screened Poisson (default: 6 up to 2000 --vertices, "
+                       "7 up to 8000, 8 above{}; a dense scan of a body whose arms lie close to the torso needs 8: "
+                       "6 webs the armpits)")
+TEMPLATE_GENUS = at_least(0).or_none("as built")
+TEMPLATE_GENUS_HELP = ("the subject's genus (a body: 0): the automatic template's shortest handle loops are cut and "
+                       "capped until it has this many, where a fine --template-depth joins parts that touch "
+                       "(default: as built)")
 
 
 @dataclass
@@ -130,6 +138,12 @@ class FitOptions:
         when there are any, fits a template decimated along them with
         infinitely sharp creases there (:func:`~mi_loop.fitting.template.feature_template`);
         ``'off'``: the smooth pipeline. Point clouds have no features here.
+    template_depth : int or None
+        Octree depth of the automatic template's screened Poisson (4 to 10); None (default): from
+        ``n_vertices`` (:func:`mi_loop.fitting.template.poisson_depth`).
+    template_genus : int or None
+        The subject's genus: the automatic template's shortest handle loops are cut until it has
+        this many (:func:`mi_loop.mesh.handles.cut_handles`); None (default): as built.
     """
 
     n_vertices: int = option(N_VERTICES, rule=at_least(4), help=TEMPLATE_HELP, flag="--vertices", metavar="N",
@@ -155,6 +169,8 @@ class FitOptions:
     features: str = option("auto", rule=one_of(("auto", "off"), "'auto' or 'off'"),
                            help="for a mesh input, keep its sharp features (edges above 40 degrees) as creases of the "
                                 "control mesh (default %(default)s; point clouds have none here)")
+    template_depth: int | None = option(None, rule=TEMPLATE_DEPTH, metavar="D", help=TEMPLATE_DEPTH_HELP.format(""))
+    template_genus: int | None = option(None, rule=TEMPLATE_GENUS, metavar="G", help=TEMPLATE_GENUS_HELP)
 
     def __post_init__(self):
         check_fields(self)
@@ -356,15 +372,10 @@ class SequenceOptions:
                                 "point-cloud frames are used as they are")
     poisson_template: bool = option(False, rule=FLAG, help="build the automatic template by screened Poisson even "
                                                            "when the first frame is a mesh")
-    template_depth: int | None = option(None, rule=integers(4, 10).or_none("from --vertices"), metavar="D",
-                                        help="octree depth of the automatic template's screened Poisson (default: "
-                                             "6 up to 2000 --vertices, 7 up to 8000, 8 above; given, a mesh frame's "
-                                             "template is built by Poisson too; a dense scan of a body whose arms "
-                                             "lie close to the torso needs 8: 6 webs the armpits)")
-    template_genus: int | None = option(None, rule=at_least(0).or_none("as built"), metavar="G",
-                                        help="the subject's genus (a body: 0): the automatic template's shortest "
-                                             "handle loops are cut and capped until it has this many, where a fine "
-                                             "--template-depth joins parts that touch (default: as built)")
+    template_depth: int | None = option(None, rule=TEMPLATE_DEPTH, metavar="D",
+                                        help=TEMPLATE_DEPTH_HELP.format("; given, a mesh frame's template is built by "
+                                                                        "Poisson too"))
+    template_genus: int | None = option(None, rule=TEMPLATE_GENUS, metavar="G", help=TEMPLATE_GENUS_HELP)
     deterministic: bool = option(False, rule=FLAG, help="bit-reproducible image term: the reverse render runs on "
                                                         "one thread (slower)")
     tolerance: float = option(0.0, rule=WEIGHT,

@@ -304,8 +304,8 @@ def _start(Pn, N, norm, options, template, mesh, creases, noise):
     if template is None:
         from mi_loop.fitting.template import make_template
 
-        V0, F, tinfo = make_template(Pn, N, options.n_vertices, seed=options.seed,
-                                     **template_options(noise["ratio"]))
+        V0, F, tinfo = make_template(Pn, N, options.n_vertices, seed=options.seed, depth=options.template_depth,
+                                     genus=options.template_genus, **template_options(noise["ratio"]))
         return V0, F, None, tinfo
     V0, F, _ = validate_mesh(template[0], template[1], "fit")
     return norm.forward(V0), F, creases, {"source": "user"}

@@ -236,6 +236,15 @@ def test_poisson_template_and_template_exclude_each_other_in_fit_batch_sequences
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", [["fit", "a.xyz"], ["fit-batch", "a.xyz"], ["fit-batch", "--sequences", "s.npz"]])
+@pytest.mark.parametrize("flag", [["--template-depth", "8"], ["--template-genus", "0"]])
+def test_template_depth_and_genus_are_refused_with_a_template(command, flag, tmp_path, capsys):
+    line = one_line_error(capsys, [*command, "-o", str(tmp_path / "o"), "--template", "t.ply", *flag])
+    assert line == (f"mi-loop: error: {command[0]} {flag[0]}: expected no --template (it builds the template), "
+                    "got --template 't.ply'")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_init_takes_a_shape_or_a_mesh_file_which_leaves_the_option_at_its_default(tmp_path, capsys):
     from mi_loop.app.cli import options_from_args
     from mi_loop.fitting.options import ImageFitOptions
