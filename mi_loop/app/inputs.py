@@ -243,6 +243,14 @@ class FrameReader:
 
 
 def handles_line(loops, genus: int) -> str:
-    """The log line of a template whose handles were cut: how many, to what genus, the loops' lengths."""
+    """The log line of a template whose handles were cut: how many, to what genus, the loops' lengths.
+
+    Parameters
+    ----------
+    loops : list of float
+        The lengths of the loops cut (:func:`mi_loop.mesh.handles.cut_handles`), at least one.
+    genus : int
+        The genus they were cut to.
+    """
     return (f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
             f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")

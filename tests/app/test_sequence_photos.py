@@ -102,14 +102,20 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
     strong hold (``--tangential 10``, weighed by the silhouettes) is along the surface only, so the side
     depth never sees still grows with the photos, as close as without the coarse stage. Both runs are
     ``--deterministic``: the image term's reverse render is otherwise not bit-reproducible, and the two
-    runs' back errors at frame 1 moved by up to 27 % from run to run (0.0070-0.0089 tracked)."""
+    runs' back errors at frame 1 moved by up to 27 % from run to run (0.0070-0.0089 tracked).
+
+    The later frames take 90 iterations, not FAST's 30. The graph carries the unseen back up with the
+    growing cap, and the photos bring it down within the frame's solve. After 30 iterations they
+    have not finished: over seeds 0-2, on 2 AMD EPYC cores the tracked back was 1.2-2.7 times the
+    untracked one at frames 1 and 2; after 90 it is 0.76-1.07 times."""
     depth, images, clean = capture
     out, untracked = tmp_path / "out", tmp_path / "untracked"
+    settings = [*FAST[:FAST.index("--iterations")], "--iterations", "90", *FAST[FAST.index("--iterations") + 2:]]
     assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
                  "-o", str(out), "--track", "4", "--tangential", "10", "--track-flow", "1", "--deterministic",
-                 *FAST]) == 0
+                 *settings]) == 0
     assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
-                 "-o", str(untracked), "--deterministic", *FAST]) == 0
+                 "-o", str(untracked), "--deterministic", *settings]) == 0
     for t in (1, 2):
         assert back_error(out, t) < 0.02 * 2 * RADII[t], (t, back_error(out, t), back_error(untracked, t))
         assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
