@@ -508,3 +508,33 @@ def slotted_torus(gap: float, n: int = 40_000, R: float = 0.6, r: float = 0.2):
         P.append(R * out + rho[:, None] * (np.cos(a)[:, None] * out + np.sin(a)[:, None] * np.array([0, 0, 1.0])))
         Ns.append(np.tile(-np.sign(side) * along, (m, 1)))
     return np.vstack(P), np.vstack(Ns)
+
+
+def genus(V, F) -> int:
+    """The genus of a closed triangle mesh (asserted closed)."""
+    from mi_loop.mesh.geometry import euler_characteristic
+
+    chi, boundary = euler_characteristic(len(V), F)
+    assert boundary == 0
+    return (2 - chi) // 2
+
+
+#: The slotted torus's three template runs: the default depth, depth 8, the handles cut to genus 0.
+SLOT_RUNS = [("default", []), ("depth 8", ["--template-depth", "8"]), ("genus 0", ["--template-genus", "0"])]
+
+
+def slot_template_runs(tmp_path, capsys, run, control: str):
+    """Fit a torus cut by a 3 % slot under :data:`SLOT_RUNS`: ``{name: (genus of control, stderr)}``.
+
+    ``run(input, out, flags)`` runs the command; ``control`` is the control mesh's path in ``out``.
+    """
+    from mi_loop import io
+
+    P, N = slotted_torus(0.03)
+    np.savetxt(tmp_path / "0000.xyz", np.hstack([P, N]))
+    found = {}
+    for name, flags in SLOT_RUNS:
+        out = tmp_path / name.replace(" ", "")
+        run(tmp_path / "0000.xyz", out, flags)
+        found[name] = (genus(*io.read_mesh(out / control)), capsys.readouterr().err)
+    return found

@@ -73,6 +73,7 @@ def _stage_line(options: FitOptions) -> str:
 
 def _fit(P, N, template, options: FitOptions, log, mesh=None):
     """Run :func:`~mi_loop.fitting.static.fit` with a progress bar; ``(result, converged)``."""
+    from mi_loop.app.inputs import say_handles
     from mi_loop.fitting.static import fit
 
     log.say(_stage_line(options))
@@ -85,10 +86,7 @@ def _fit(P, N, template, options: FitOptions, log, mesh=None):
                 f"above {tinfo['feature_angle']:g} degrees), {tinfo['creases']} crease edges on the control mesh")
     elif options.features == "auto" and mesh is not None:
         log.say("sharp features: none found (no feature curve of at least 5 % of the diagonal)")
-    if tinfo.get("handles_cut"):
-        from mi_loop.app.inputs import handles_line
-
-        log.say(handles_line(tinfo["handles_cut"], options.template_genus))
+    say_handles(tinfo, options.template_genus, log)
     noise = result.info["noise"]
     log.say(f"noise: {noise['sigma_diagonal']:.2e} of the diagonal, {noise['ratio']:.2f} x the point spacing; "
             f"ARAP weight {result.params['alpha']:g} ({noise['alpha']})")

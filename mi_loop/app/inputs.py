@@ -17,8 +17,8 @@ import numpy as np
 from mi_loop import io
 from mi_loop.errors import expected
 
-__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "handles_line",
-           "load_input", "read_template"]
+__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "load_input",
+           "read_template", "say_handles"]
 
 #: A template's bounding-box diagonal must be within this factor of the data's.
 MAX_SIZE_RATIO = 2.0
@@ -242,15 +242,20 @@ class FrameReader:
         return ("points", frame.vertices, frame.normals)
 
 
-def handles_line(loops, genus: int) -> str:
-    """The log line of a template whose handles were cut: how many, to what genus, the loops' lengths.
+def say_handles(info: dict, genus, log) -> None:
+    """Log how many handles a template builder cut (its ``info["handles_cut"]``), if it cut any.
 
     Parameters
     ----------
-    loops : list of float
-        The lengths of the loops cut (:func:`mi_loop.mesh.handles.cut_handles`), at least one.
-    genus : int
+    info : dict
+        The builder's info (:func:`~mi_loop.fitting.template.make_template`, ``mesh_template``); a
+        template without ``handles_cut`` (a user's, a feature template) says nothing.
+    genus : int or None
         The genus they were cut to.
+    log : mi_loop.app.progress.Reporter
+        Where the line goes.
     """
-    return (f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
-            f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")
+    loops = info.get("handles_cut")
+    if loops:
+        log.say(f"template: {len(loops)} handle{'s' if len(loops) > 1 else ''} cut to genus {genus} (loops "
+                f"{min(loops):.3g}-{max(loops):.3g} long in the unit box)")

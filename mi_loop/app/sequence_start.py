@@ -240,13 +240,15 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
     With ``template_genus``, either template has its handles beyond that genus
     cut (:func:`mi_loop.mesh.handles.cut_handles`).
     """
+    from mi_loop.app.inputs import say_handles
     from mi_loop.fitting.template import make_template, mesh_template
 
     if first.mesh is not None and not options.poisson_template and options.template_depth is None:
         try:
-            x, F, _ = mesh_template(norm.forward(first.mesh[0]), first.mesh[1], options.n_vertices)
+            x, F, info = mesh_template(norm.forward(first.mesh[0]), first.mesh[1], options.n_vertices,
+                                       genus=options.template_genus)
             log.say(f"template: first frame's mesh decimated to {len(x)} vertices")
-            x, F = _cut_handles(x, F, options.template_genus, log)
+            say_handles(info, options.template_genus, log)
             return x, F, {"source": "mesh", "n_vertices": len(x), "n_faces": len(F)}
         except ValueError as exc:
             log.say(f"template: first frame's mesh cannot be used ({exc}); screened Poisson instead")
@@ -255,23 +257,10 @@ def _template(first, norm, options: SequenceOptions, log, hull=None):
     depth = f" at depth {options.template_depth}" if options.template_depth is not None else ""
     log.say(f"template: screened Poisson{' of the points and the visual hull' if hull is not None else ''}{depth} "
             f"+ decimation to {options.n_vertices} vertices")
-    x, F, _ = make_template(norm.forward(P), N, options.n_vertices, depth=options.template_depth, seed=options.seed)
-    x, F = _cut_handles(x, F, options.template_genus, log)
+    x, F, info = make_template(norm.forward(P), N, options.n_vertices, depth=options.template_depth,
+                               seed=options.seed, genus=options.template_genus)
+    say_handles(info, options.template_genus, log)
     return x, F, {"source": source, "n_vertices": len(x), "n_faces": len(F)}
-
-
-def _cut_handles(x, F, genus, log):
-    """The template with its handles beyond ``genus`` cut (None: as it is); the log says how many."""
-    from mi_loop.app.inputs import handles_line
-    from mi_loop.mesh.geometry import euler_characteristic
-    from mi_loop.mesh.handles import cut_handles
-
-    if genus is None or euler_characteristic(len(x), F)[1]:       # an open template keeps its topology
-        return x, F
-    x, F, loops = cut_handles(x, F, genus)
-    if loops:
-        log.say(handles_line(loops, genus))
-    return x, F
 
 
 def _hull_points(first, views, log):

@@ -154,8 +154,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     """
     t0 = time.perf_counter()
     P, N, n_vertices, depth, dropped = _check_inputs(P, N, n_vertices, depth, min_angle, max_points, zero_normals)
-    if genus is not None and (isinstance(genus, bool) or not isinstance(genus, (int, np.integer)) or genus < 0):
-        _fail(f"genus must be an integer >= 0 or None, got {genus!r}")
+    _check_genus(genus, "make_template")
     if len(P) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(P), max_points, replace=False))
         P, N = P[keep], N[keep]
@@ -170,11 +169,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     if _agreement(V, F, P, N) < 0:
         F = F[:, ::-1].copy()
     V, F, _ = validate_mesh(V, F, "make_template")
-    loops = []
-    if genus is not None and euler_characteristic(len(V), F)[1] == 0:    # closed: cut the handles beyond it
-        V, F, loops = cut_handles(V, F, genus)
-        if loops:
-            V, F, _ = validate_mesh(V, F, "make_template")
+    V, F, loops = _to_genus(V, F, genus, "make_template")
     t3 = time.perf_counter()
     chi, n_boundary = euler_characteristic(len(V), F)
     info = {"depth": depth, "point_weight": float(point_weight), "samples_per_node": float(samples_per_node),
@@ -187,7 +182,7 @@ def make_template(P, N, n_vertices: int, depth: int | None = None, seed: int = 0
     return V, F, info
 
 
-def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool = False):
+def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool = False, genus: int | None = None):
     """Decimate a manifold triangle mesh to a control mesh of about ``n_vertices`` vertices.
 
     Parameters
@@ -209,13 +204,15 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool =
         sharp features, whose corners the default cuts (on the fandisk, the
         sliver removal after the default decimation left parts of the mesh
         4.5 % of the diagonal from the template; 0.2 % this way).
+    genus : int or None, optional
+        As for :func:`make_template`.
 
     Returns
     -------
     V, F, info
         As :func:`make_template`; ``info`` has ``input_vertices``,
         ``refined_vertices``, ``vertices``, ``faces``, ``genus``,
-        ``boundary_edges``, ``min_angle``, ``flips``, ``collapses``,
+        ``boundary_edges``, ``handles_cut``, ``min_angle``, ``flips``, ``collapses``,
         ``time_total``.
 
     Raises
@@ -240,6 +237,7 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool =
         _fail(f"n_vertices must be an integer >= 4, got {n_vertices!r}", "mesh_template")
     if not 0 <= min_angle <= 20:
         _fail(f"min_angle must be in [0, 20] degrees, got {min_angle!r}", "mesh_template")
+    _check_genus(genus, "mesh_template")
     V, F = weld(np.asarray(V, dtype=np.float64), np.asarray(F))
     V, F, _ = validate_mesh(V, F, "mesh_template")
     total = face_areas(V, F).sum()
@@ -261,12 +259,29 @@ def mesh_template(V, F, n_vertices: int, min_angle: float = 10.0, planar: bool =
         Vd, Fd = _decimate(Vr, Fr, 2 * int(n_vertices) - len(Vd), chi, planar)
         Vd, Fd, stats = remove_slivers(Vd, Fd, Vr, Fr, min_angle)
     Vd, Fd, _ = validate_mesh(Vd, Fd, "mesh_template")
+    Vd, Fd, loops = _to_genus(Vd, Fd, genus, "mesh_template")
     chi, n_boundary = euler_characteristic(len(Vd), Fd)
     info = {"input_vertices": len(V), "refined_vertices": len(Vr), "vertices": len(Vd), "faces": len(Fd),
             "genus": (2 - chi) // 2 if n_boundary == 0 else None, "boundary_edges": n_boundary,
+            "handles_cut": loops,
             "min_angle": stats["min_angle"], "flips": stats["flips"], "collapses": stats["collapses"],
             "time_total": time.perf_counter() - t0}
     return Vd, Fd, info
+
+
+def _check_genus(genus, func: str) -> None:
+    if genus is not None and (isinstance(genus, bool) or not isinstance(genus, (int, np.integer)) or genus < 0):
+        _fail(f"genus must be an integer >= 0 or None, got {genus!r}", func)
+
+
+def _to_genus(V, F, genus, func: str):
+    """``(V, F, loop lengths)``: a closed template's handles beyond ``genus`` cut (None, or an open one: as it is)."""
+    if genus is None or euler_characteristic(len(V), F)[1]:
+        return V, F, []
+    V, F, loops = cut_handles(V, F, genus)
+    if loops:
+        V, F, _ = validate_mesh(V, F, func)
+    return V, F, loops
 
 
 def _check_inputs(P, N, n_vertices, depth, min_angle, max_points, zero_normals):

@@ -140,15 +140,10 @@ def _cut(V, F, cycle):
         F[f][list(F[f]).index(c)] = new[c]
     ring = np.array(cycle)
     centre = V[ring].mean(axis=0)
-    sides = []
-    for on_left in (True, False):
-        faces = np.array(sorted({f for f, _ in left})) if on_left else None
-        if on_left:
-            around = np.setdiff1d(np.unique(F[faces]), list(new.values()))
-        else:
-            touching = np.flatnonzero(np.isin(F, ring).any(axis=1))
-            around = np.setdiff1d(np.unique(F[touching]), ring)
-        sides.append(centre + 0.5 * (V[around].mean(axis=0) - centre))
+    # each cap's centre: half way from the loop's centre to the mean of the vertices next to the loop on its side
+    beside_left = np.setdiff1d(F[sorted({f for f, _ in left})], list(new.values()))
+    beside_right = np.setdiff1d(F[np.isin(F, ring).any(axis=1)], ring)
+    sides = [centre + 0.5 * (V[beside].mean(axis=0) - centre) for beside in (beside_left, beside_right)]
     V = np.vstack([V, V[ring], sides])
     pl, pr = len(V) - 2, len(V) - 1
     caps = []

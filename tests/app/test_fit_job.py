@@ -18,7 +18,7 @@ from helpers import (
     limit_surface,
     one_line_error,
     run_console,
-    slotted_torus,
+    slot_template_runs,
     torus_cloud,
     torus_error,
     write_xyz,
@@ -346,20 +346,12 @@ def test_a_template_in_the_datas_frame_fits_the_scan(tmp_path, capsys):
 
 def test_template_depth_and_genus_reach_the_static_fits_template(tmp_path, capsys):
     """A torus cut by a narrow slot: the default depth webs it (genus 1); depth 8 or genus 0 does not."""
-    from mi_loop.mesh.geometry import euler_characteristic
+    def run(data, out, flags):
+        assert main(["fit", str(data), "-o", str(out), "--vertices", "300", "--iterations", "5", *flags]) == 0
 
-    P, N = slotted_torus(0.03)
-    np.savetxt(tmp_path / "slot.xyz", np.hstack([P, N]))
-    genus, cut = {}, {}
-    runs = [("default", []), ("depth 8", ["--template-depth", "8"]), ("genus 0", ["--template-genus", "0"])]
-    for name, flags in runs:
-        out = tmp_path / name.replace(" ", "")
-        assert main(["fit", str(tmp_path / "slot.xyz"), "-o", str(out), "--vertices", "300", "--iterations", "5",
-                     *flags]) == 0
-        cut[name] = "template: 1 handle cut to genus 0 (loops" in capsys.readouterr().err
-        V, F = io.read_mesh(out / "control.ply")
-        genus[name] = (2 - euler_characteristic(len(V), F)[0]) // 2
-    assert genus == {"default": 1, "depth 8": 0, "genus 0": 0}
+    found = slot_template_runs(tmp_path, capsys, run, "control.ply")
+    assert {name: g for name, (g, _) in found.items()} == {"default": 1, "depth 8": 0, "genus 0": 0}
+    cut = {name: "template: 1 handle cut to genus 0 (loops" in err for name, (_, err) in found.items()}
     assert cut == {"default": False, "depth 8": False, "genus 0": True}
 
 

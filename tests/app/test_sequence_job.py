@@ -21,7 +21,7 @@ from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.fitting.options import SequenceOptions
 
-from helpers import REPO, one_line_error, parse_glb, slotted_torus, sphere_mesh
+from helpers import REPO, one_line_error, parse_glb, slot_template_runs, sphere_mesh
 
 #: Options of a quick run: 4 views of 24x24 pixels, 2 spp, 20 iterations per frame (30 for the first),
 #: an image refresh every 10, 2000 points.
@@ -430,22 +430,15 @@ def test_poisson_template_and_template_exclude_each_other(inputs, tmp_path, caps
 
 
 def test_template_depth_opens_a_narrow_slot_that_the_default_depth_webs_and_template_genus_cuts_it(tmp_path, capsys):
-    from mi_loop.mesh.geometry import euler_characteristic
-
-    P, N = slotted_torus(0.03)
-    np.savetxt(tmp_path / "0000.xyz", np.hstack([P, N]))
-    genus, cut = {}, {}
-    runs = [("default", []), ("depth 8", ["--template-depth", "8"]), ("genus 0", ["--template-genus", "0"])]
-    for name, flags in runs:
-        out = tmp_path / name.replace(" ", "")
-        run_ok(["fit-sequence", str(tmp_path / "0000.xyz"), "-o", str(out), "--vertices", "300", "--no-image",
+    def run(data, out, flags):
+        run_ok(["fit-sequence", str(data), "-o", str(out), "--vertices", "300", "--no-image",
                 "--first-iterations", "5", *flags])
-        err = capsys.readouterr().err
+
+    found = slot_template_runs(tmp_path, capsys, run, "control/0000.ply")
+    assert {name: g for name, (g, _) in found.items()} == {"default": 1, "depth 8": 0, "genus 0": 0}
+    for name, (_, err) in found.items():
         assert f"template: screened Poisson{' at depth 8' if name == 'depth 8' else ''} + decimation" in err
-        cut[name] = "template: 1 handle cut to genus 0 (loops" in err
-        Vc, Fc = io.read_mesh(out / "control" / "0000.ply")
-        genus[name] = (2 - euler_characteristic(len(Vc), Fc)[0]) // 2
-    assert genus == {"default": 1, "depth 8": 0, "genus 0": 0}
+    cut = {name: "template: 1 handle cut to genus 0 (loops" in err for name, (_, err) in found.items()}
     assert cut == {"default": False, "depth 8": False, "genus 0": True}
 
 

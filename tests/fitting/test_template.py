@@ -224,6 +224,8 @@ def test_mesh_template_errors():
         mesh_template(V, F, 3)
     with pytest.raises(ValueError, match="mesh_template\\(\\): min_angle must be in \\[0, 20\\] degrees, got 25"):
         mesh_template(V, F, 100, min_angle=25)
+    with pytest.raises(ValueError, match=r"^mesh_template\(\): genus must be an integer >= 0 or None, got 0.5$"):
+        mesh_template(V, F, 100, genus=0.5)
     bad = np.vstack([F, [[0, 1, 2]]])                   # one face twice: not a manifold
     with pytest.raises(ValueError, match=r"^mesh_template\(\): expected a manifold mesh \(the faces around each vertex "
                                          r"form one fan\), "

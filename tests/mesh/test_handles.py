@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from mi_loop import datasets
-from mi_loop.mesh.geometry import euler_characteristic
 from mi_loop.mesh.handles import cut_handles, shortest_handle_loop
 from mi_loop.mesh.topology import validate_mesh
+
+from helpers import genus
 
 
 def torus(tube, n_around: int = 48, n_tube: int = 16, R: float = 1.0):
@@ -22,12 +23,6 @@ def torus(tube, n_around: int = 48, n_tube: int = 16, R: float = 1.0):
     c, d = ((i + 1) % n_around) * n_tube + (j + 1) % n_tube, i * n_tube + (j + 1) % n_tube
     F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
     return V, F
-
-
-def genus(V, F) -> int:
-    chi, boundary = euler_characteristic(len(V), F)
-    assert boundary == 0
-    return (2 - chi) // 2
 
 
 def test_the_shortest_handle_loop_of_a_torus_is_a_meridian():
