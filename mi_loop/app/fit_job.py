@@ -68,7 +68,8 @@ def _stage_line(options: FitOptions) -> str:
     parts = [name if weight is None else f"{name} (weight chosen for the noise)"
              if getattr(options, weight) is None else f"{getattr(options, weight):g} x {name}"
              for name, weight in _TERM_WEIGHTS.items() if name in options.terms]
-    return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}"
+    guard = "; no step crosses the surface (--no-crossing)" if options.no_crossing else ""
+    return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}{guard}"
 
 
 def _fit(P, N, template, options: FitOptions, log, mesh=None):

@@ -121,6 +121,11 @@ class FrameFitter:
         self.op = LimitOperator(run.F, n, fid, uv, derivatives=True)   # normals: facing data only
         self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
         self.graph = self.matrices = None
+        self.crossings = None
+        if o.no_crossing:      # the fold guard's crossing test, of every frame's steps and the coarse stage's
+            from mi_loop.fitting.guard import CrossingTest
+
+            self.crossings = CrossingTest(run.F, n)
         if o.track > 0 and o.geometric:      # the coarse stage of every frame after the first
             from mi_loop.fitting.track import DeformationGraph
 
@@ -140,7 +145,8 @@ class FrameFitter:
         if o.image:
             terms += [f"photos ({len(run.sources.captures)} captures)" if photos
                       else f"image ({o.mode}, {o.views} views)"]
-        log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}")
+        guard = "; no step crosses the surface (--no-crossing)" if o.no_crossing else ""
+        log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}{guard}")
 
     def _albedo(self, saved: dict) -> None:
         """The albedo (0.5 grey, or restored with its optimiser's state), and the estimated lighting's saved state."""
@@ -271,11 +277,15 @@ class FrameFitter:
 
             x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(images),
                                 ray=run.options.track_flow)
+            if self.crossings is not None:       # the graph's step crosses nothing new either
+                from mi_loop.fitting.guard import hold_apart
+
+                x0 = hold_apart(self.crossings, run.x, x0)
             held = self._held(x0, tracked["held"], frame.mesh is not None)
         V, info = sequence.fit_frame(x0, run.F, P, N, self.op, images, run.options, t, run.lr, progress=progress,
                                      rest=run.rest, vertex_op=self.vertex_op, iterations=iterations,
                                      complete=frame.mesh is not None, held=held,
-                                     previous=None if held is None else run.x)
+                                     previous=None if held is None else run.x, crossings=self.crossings)
         if run.sources.captures and info["albedo"] is not None:
             run.albedo = info["albedo"]
         return V, info

@@ -89,6 +89,9 @@ TEMPLATE_DEPTH_HELP = ("octree depth of the automatic template's screened Poisso
                        "7 up to 8000, 8 above{}; a dense scan of a body whose arms lie close to the torso needs 8: "
                        "6 webs the armpits)")
 TEMPLATE_GENUS = at_least(0).or_none("as built")
+NO_CROSSING_HELP = ("keep the limit surface from passing through itself: every step is tested for crossing triangles "
+                    "of a level-2 tessellation, and the control points that would make new ones stay where they "
+                    "were (slower; for parts that come close, such as arms against a body)")
 TEMPLATE_GENUS_HELP = ("the subject's genus (a body: 0): the automatic template's shortest handle loops are cut and "
                        "capped until it has this many, where a fine --template-depth joins parts that touch "
                        "(default: as built)")
@@ -144,6 +147,10 @@ class FitOptions:
     template_genus : int or None
         The subject's genus: the automatic template's shortest handle loops are cut until it has
         this many (:func:`mi_loop.mesh.handles.cut_handles`); None (default): as built.
+    no_crossing : bool
+        Pass every step through the fold guard (:class:`~mi_loop.fitting.guard.FoldGuard`) with a
+        crossing test (:class:`~mi_loop.fitting.guard.CrossingTest`): no step turns a control triangle
+        over or makes the limit surface pass through itself where it did not.
     """
 
     n_vertices: int = option(N_VERTICES, rule=at_least(4), help=TEMPLATE_HELP, flag="--vertices", metavar="N",
@@ -171,6 +178,7 @@ class FitOptions:
                                 "control mesh (default %(default)s; point clouds have none here)")
     template_depth: int | None = option(None, rule=TEMPLATE_DEPTH, metavar="D", help=TEMPLATE_DEPTH_HELP.format(""))
     template_genus: int | None = option(None, rule=TEMPLATE_GENUS, metavar="G", help=TEMPLATE_GENUS_HELP)
+    no_crossing: bool = option(False, rule=FLAG, help=NO_CROSSING_HELP)
 
     def __post_init__(self):
         check_fields(self)
@@ -268,6 +276,9 @@ class SequenceOptions:
     template_genus : int or None
         The subject's genus: the automatic template's shortest handle loops are cut until it has
         this many (:func:`mi_loop.mesh.handles.cut_handles`); None (default): as built.
+    no_crossing : bool
+        The fold guard of every step (and the coarse stage's step) also keeps the limit surface
+        from passing through itself where it did not (:class:`~mi_loop.fitting.guard.CrossingTest`).
     deterministic : bool
         Bit-reproducible image term: the reverse render runs on one thread (slower).
     tolerance : float
@@ -376,6 +387,7 @@ class SequenceOptions:
                                         help=TEMPLATE_DEPTH_HELP.format("; given, a mesh frame's template is built by "
                                                                         "Poisson too"))
     template_genus: int | None = option(None, rule=TEMPLATE_GENUS, metavar="G", help=TEMPLATE_GENUS_HELP)
+    no_crossing: bool = option(False, rule=FLAG, help=NO_CROSSING_HELP)
     deterministic: bool = option(False, rule=FLAG, help="bit-reproducible image term: the reverse render runs on "
                                                         "one thread (slower)")
     tolerance: float = option(0.0, rule=WEIGHT,

@@ -342,7 +342,7 @@ class ImageBalance:
 
 def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: SequenceOptions, frame: int,
               lr: float, progress=None, *, rest=None, vertex_op=None, iterations: int | None = None,
-              complete: bool = False, held=None, previous=None):
+              complete: bool = False, held=None, previous=None, crossings=None):
     """Fit the control points of one frame, warm-started from the previous frame's ``x0``.
 
     One run of the optimisation loop on ``E_t`` (module docstring):
@@ -401,6 +401,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         The previous frame's fit, ARAP's rest shape when ``x0`` is not it (a tracked start): where the coarse
         stage bent a part the data do not hold (a limb it lost), ARAP restores the part's fitted shape
         instead of keeping the bend. Default: ``x0``.
+    crossings : CrossingTest, optional
+        The fold guard also keeps every step from making the limit surface pass through itself
+        where it did not (``options.no_crossing``; :class:`~mi_loop.fitting.guard.CrossingTest`).
 
     Returns
     -------
@@ -474,7 +477,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     seeds = Seeds(options.seed).child(frame)
     guard = None
     if op.derivatives:       # no step turns a control triangle over or flips a limit normal (against the last frame's)
-        guard = FoldGuard(op, F, x0 if rest is None else rest, np.array(normals0, dtype=np.float64).T)
+        guard = FoldGuard(op, F, x0 if rest is None else rest, np.array(normals0, dtype=np.float64).T,
+                          crossings=crossings)
     if gauss_newton:
         metric = sp.kron(smoothing_matrix(F, n, 1.0), sp.identity(3), format="csr")
         params = {"x": Parameter(x, GaussNewton(damping=GN_DAMPING, metric=metric), Constant(1.0),

@@ -312,7 +312,8 @@ def _start(Pn, N, norm, options, template, mesh, creases, noise):
 
 
 def _operators(F, n, creases, options, fold):
-    """The limit operators of the distance terms and (with ``fold``) of the barrier's denser samples."""
+    """The limit operators of the distance terms and (with ``fold``) of the barrier's denser samples, and the
+    crossing test of ``options.no_crossing`` (or None)."""
     from mi_loop.ad.operator import LimitOperator
 
     fid, uv = sample_parameters(F, n, options.samples, options.seed)
@@ -321,7 +322,12 @@ def _operators(F, n, creases, options, fold):
     if fold > 0:      # the barrier's samples: denser than the distance terms', so small folds show
         fid_f, uv_f, _ = tessellate(F, FOLD_LEVEL)
         fold_op = LimitOperator(F, n, fid_f, uv_f, creases=creases, derivatives=True)
-    return op, fold_op
+    crossings = None
+    if options.no_crossing:
+        from mi_loop.fitting.guard import CrossingTest
+
+        crossings = CrossingTest(F, n, creases=creases)
+    return op, fold_op, crossings
 
 
 def _select(Pn, N, F, creases, options, fit_with, progress):
@@ -357,7 +363,7 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     from mi_loop.fitting.optimisers import Adam, Constant
     from mi_loop.fitting.rules import Convergence, Failure, Refresh, Seeds
 
-    op, fold_op = ops
+    op, fold_op, crossings = ops
     imls, coverage = energies
     x0 = mi.Float(V0.ravel().astype(np.float32))
     imls.update(np.array(op.positions(x0), dtype=np.float64).T)
@@ -372,7 +378,12 @@ def _minimise(ops, energies, arap, V0, alpha: float, fold: float, options: FitOp
     parts.append(terms.Rigidity(arap, alpha / len(V0)))
     if fold > 0:
         parts.append(terms.Fold(fold_op, fold, data=(imls.tree, imls.normals, FOLD_NEIGHBOURS), cosine=FOLD_COSINE))
-    result = optimise({"x": Parameter(x0, Adam(), Constant(lr))}, parts, iterations=options.iterations,
+    guard = None
+    if crossings is not None:        # no step folds a control triangle or crosses the surface anew
+        from mi_loop.fitting.guard import FoldGuard
+
+        guard = FoldGuard(op, arap.F, V0, crossings=crossings)
+    result = optimise({"x": Parameter(x0, Adam(), Constant(lr), guard=guard)}, parts, iterations=options.iterations,
                       seeds=Seeds(options.seed), refresh=Refresh(20, 0.25 * imls.h0, op),
                       convergence=Convergence(options.tolerance, patience=12, halvings=3, window=40),
                       failure=failure,
