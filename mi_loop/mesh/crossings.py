@@ -47,69 +47,56 @@ def _crosses(V, f, g):
 
 
 @numba.njit(cache=True)
-def _boxes(V, F, h, pad):
-    """Each triangle's bounding box grown by pad (lo, hi) and the range of grid cells it covers (clo, chi),
-    cell size h."""
+def _tri_boxes(V, F, pad):
+    """Each triangle's bounding box, grown by pad: (lo, hi)."""
     m = len(F)
     lo, hi = np.empty((m, 3)), np.empty((m, 3))
     for i in range(m):
         for d in range(3):
             a, b, c = V[F[i, 0], d], V[F[i, 1], d], V[F[i, 2], d]
             lo[i, d], hi[i, d] = min(a, min(b, c)) - pad, max(a, max(b, c)) + pad
-    origin = np.array([lo[:, 0].min(), lo[:, 1].min(), lo[:, 2].min()])
-    clo, chi = np.empty((m, 3), dtype=np.int64), np.empty((m, 3), dtype=np.int64)
-    for i in range(m):
-        for d in range(3):
-            clo[i, d] = np.int64((lo[i, d] - origin[d]) / h)
-            chi[i, d] = np.int64((hi[i, d] - origin[d]) / h)
-    return lo, hi, clo, chi
+    return lo, hi
 
 
 @numba.njit(cache=True)
-def _cell_entries(clo, chi):
-    """(cell key, triangle) for every cell every triangle covers, sorted by key; and the grid's (ny, nz)."""
+def _cell_entries(lo, hi, h):
+    """(cell key, box) for every grid cell (size h) every box covers, sorted by key; the boxes' lowest and
+    highest cells (clo, chi); the grid's (ny, nz)."""
+    m = len(lo)
+    clo, chi = np.empty((m, 3), dtype=np.int64), np.empty((m, 3), dtype=np.int64)
+    for d in range(3):
+        origin = lo[:, d].min()
+        for i in range(m):
+            clo[i, d], chi[i, d] = np.int64((lo[i, d] - origin) / h), np.int64((hi[i, d] - origin) / h)
     ny, nz = chi[:, 1].max() + 1, chi[:, 2].max() + 1
     count = 0
-    for i in range(len(clo)):
+    for i in range(m):
         count += (chi[i, 0] - clo[i, 0] + 1) * (chi[i, 1] - clo[i, 1] + 1) * (chi[i, 2] - clo[i, 2] + 1)
-    keys, tris = np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64)
+    keys, boxes = np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64)
     k = 0
-    for i in range(len(clo)):
+    for i in range(m):
         for x in range(clo[i, 0], chi[i, 0] + 1):
             for y in range(clo[i, 1], chi[i, 1] + 1):
                 for z in range(clo[i, 2], chi[i, 2] + 1):
-                    keys[k], tris[k] = (x * ny + y) * nz + z, i
+                    keys[k], boxes[k] = (x * ny + y) * nz + z, i
                     k += 1
     order = np.argsort(keys, kind="mergesort")
-    return keys[order], tris[order], ny, nz
+    return keys[order], boxes[order], clo, chi, ny, nz
 
 
 @numba.njit(cache=True)
-def _candidate(F, lo, hi, clo, chi, cell, i, j, group, G):
-    """Are triangles i and j a pair in this cell: boxes that meet, no shared corner, groups whose faces ``G``
-    share no corner (when ``group`` is given), and this cell the lowest both boxes cover (so that the pair
-    comes once)?"""
+def _meet_once(lo, hi, clo, chi, cell, i, j):
+    """Do boxes i and j meet, and is this cell the lowest both cover (so that the pair comes once)?"""
     for d in range(3):
         if lo[i, d] > hi[j, d] or lo[j, d] > hi[i, d] or cell[d] != max(clo[i, d], clo[j, d]):
             return False
-    for a in range(3):
-        for b in range(3):
-            if F[i, a] == F[j, b]:
-                return False
-    if len(group):
-        for a in range(3):
-            for b in range(3):
-                if G[group[i], a] == G[group[j], b]:
-                    return False
     return True
 
 
 @numba.njit(cache=True)
-def _grid_pairs(V, F, h, pad, exact, group, G):
-    """Pairs (i, j), i < j, over a uniform grid of cell size h on the triangles' bounding boxes grown by pad:
-    the crossing ones (``exact``) or all whose grown boxes meet."""
-    lo, hi, clo, chi = _boxes(V, F, h, pad)
-    keys, tris, ny, nz = _cell_entries(clo, chi)
+def _box_pairs(lo, hi, h):
+    """Pairs (i, j), i < j, of boxes that meet, over a uniform grid of cell size h."""
+    keys, boxes, clo, chi, ny, nz = _cell_entries(lo, hi, h)
     out = []
     start = 0
     while start < len(keys):
@@ -120,10 +107,59 @@ def _grid_pairs(V, F, h, pad, exact, group, G):
         cell = (key // (ny * nz), (key // nz) % ny, key % nz)
         for a in range(start, stop):
             for b in range(a + 1, stop):
-                i, j = tris[a], tris[b]
-                if _candidate(F, lo, hi, clo, chi, cell, i, j, group, G) and (not exact or _crosses(V, F[i], F[j])):
+                i, j = boxes[a], boxes[b]
+                if _meet_once(lo, hi, clo, chi, cell, i, j):
                     out.append((min(i, j), max(i, j)))
         start = stop
+    pairs = np.empty((len(out), 2), dtype=np.int64)
+    for k in range(len(out)):
+        pairs[k, 0], pairs[k, 1] = out[k]
+    return pairs
+
+
+@numba.njit(cache=True, inline="always")
+def _share_corner(F, i, j):
+    for a in range(3):
+        for b in range(3):
+            if F[i, a] == F[j, b]:
+                return True
+    return False
+
+
+@numba.njit(cache=True)
+def _apart(F, pairs):
+    """The pairs of triangles that share no corner."""
+    keep = np.empty(len(pairs), dtype=np.bool_)
+    for k in range(len(pairs)):
+        keep[k] = not _share_corner(F, pairs[k, 0], pairs[k, 1])
+    return pairs[keep]
+
+
+@numba.njit(cache=True)
+def _group_boxes(lo, hi, group, n_groups):
+    """The bounding box of each group's boxes (empty groups: lo +inf, hi -inf)."""
+    glo, ghi = np.full((n_groups, 3), np.inf), np.full((n_groups, 3), -np.inf)
+    for i in range(len(group)):
+        for d in range(3):
+            glo[group[i], d] = min(glo[group[i], d], lo[i, d])
+            ghi[group[i], d] = max(ghi[group[i], d], hi[i, d])
+    return glo, ghi
+
+
+@numba.njit(cache=True)
+def _member_pairs(F, lo, hi, gpairs, members, starts):
+    """The pairs of triangles, one of each group of a pair of groups, whose boxes meet and that share no corner."""
+    out = []
+    for k in range(len(gpairs)):
+        ga, gb = gpairs[k, 0], gpairs[k, 1]
+        for a in range(starts[ga], starts[ga + 1]):
+            for b in range(starts[gb], starts[gb + 1]):
+                i, j = members[a], members[b]
+                meet = True
+                for d in range(3):
+                    meet &= lo[i, d] <= hi[j, d] and lo[j, d] <= hi[i, d]
+                if meet and not _share_corner(F, i, j):
+                    out.append((min(i, j), max(i, j)))
     pairs = np.empty((len(out), 2), dtype=np.int64)
     for k in range(len(out)):
         pairs[k, 0], pairs[k, 1] = out[k]
@@ -151,10 +187,10 @@ def _cross_list(V, F, pairs, out):
         out[k] = _boxes_meet(V, f, g) and _crosses(V, f, g)
 
 
-def _cell(V, F, reach: float) -> float:
-    """Grid cell: twice the median triangle's bounding-box side, plus the reach."""
-    extent = np.ptp(V[F], axis=1).max(axis=1)
-    return max(2.0 * float(np.median(extent)) + reach, 1e-12 * max(float(np.ptp(V, axis=0).max()), 1.0))
+def _cell(lo, hi) -> float:
+    """Grid cell: twice the median box's largest side (not below 1e-12 of the whole)."""
+    extent = (hi - lo).max(axis=1)
+    return max(2.0 * float(np.median(extent)), 1e-12 * max(float((hi.max(axis=0) - lo.min(axis=0)).max()), 1.0))
 
 
 def _sorted(pairs):
@@ -185,9 +221,9 @@ def crossing_pairs(V, F) -> np.ndarray:
 
     Notes
     -----
-    Broad phase: a uniform grid of cells twice the median triangle's
-    bounding-box side; each pair whose boxes meet is tested once, in the
-    lowest cell both boxes cover. Narrow phase: two triangles that are not coplanar
+    Broad phase (:func:`near_pairs` at reach 0): a uniform grid of cells
+    twice the median triangle's bounding-box side; each pair whose boxes
+    meet is found once, in the lowest cell both boxes cover. Narrow phase: two triangles that are not coplanar
     intersect iff one of their six edges crosses the other triangle, which
     two signs of tetrahedron volumes and three of the edge against the
     triangle's sides decide.
@@ -203,8 +239,7 @@ def crossing_pairs(V, F) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    none = np.zeros(0, dtype=np.int64)
-    return _sorted(_grid_pairs(V, F, _cell(V, F, 0.0), 0.0, True, none, np.zeros((0, 3), dtype=np.int64)))
+    return _sorted(crossing_among(V, F, near_pairs(V, F, 0.0)))
 
 
 def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
@@ -247,9 +282,8 @@ def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
     V, F = check_triangles(V, F, "near_pairs")
     if not (np.isfinite(reach) and reach >= 0):
         raise ValueError(f"near_pairs(): expected a finite reach >= 0, got {reach!r}")
-    group, G = np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
     if groups is not None:
-        group, G = np.ascontiguousarray(groups[0], dtype=np.int64), np.ascontiguousarray(groups[1], dtype=np.int64)
+        group, G = np.asarray(groups[0], dtype=np.int64), np.ascontiguousarray(groups[1], dtype=np.int64)
         if group.shape != (len(F),) or G.ndim != 2 or G.shape[1] != 3 or (len(group) and not (
                 0 <= group.min() and group.max() < len(G))):
             raise ValueError(f"near_pairs(): expected groups (group, G): group of shape ({len(F)},) indexing the "
@@ -258,7 +292,16 @@ def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    return _sorted(_grid_pairs(V, F, _cell(V, F, reach), 0.5 * reach, False, group, G))
+    lo, hi = _tri_boxes(V, F, 0.5 * reach)
+    if groups is None:
+        return _sorted(_apart(F, _box_pairs(lo, hi, _cell(lo, hi))))
+    # two levels: the groups' boxes first (a control face's limit triangles), then their triangles
+    glo, ghi = _group_boxes(lo, hi, group, len(G))
+    used = np.flatnonzero(np.isfinite(glo[:, 0]))
+    gpairs = _apart(G, used[_box_pairs(glo[used], ghi[used], _cell(glo[used], ghi[used]))])
+    members = np.argsort(group, kind="stable")
+    starts = np.searchsorted(group[members], np.arange(len(G) + 1))
+    return _sorted(_member_pairs(F, lo, hi, gpairs, members, starts))
 
 
 def crossing_among(V, F, pairs) -> np.ndarray:
