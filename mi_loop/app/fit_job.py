@@ -116,13 +116,14 @@ def _measure(result, target, P, clean, seed, log):
         log.say(f"distance to the clean torus (without noise and outliers): mean "
                 f"{metrics_clean['mean']:.2e}, RMS {metrics_clean['rms']:.2e}, "
                 f"Hausdorff {metrics_clean['hausdorff']:.2e}")
-    metrics.update(_folds(V_lim, F_lim, target, log))
+    metrics.update(_folds(V_lim, F_lim, target, log, guarded=bool(result.params.get("no_crossing"))))
     result.timings["metrics"] = time.perf_counter() - t
     return metrics, metrics_clean, (V_lim, F_lim, N_lim)
 
 
-def _folds(V_lim, F_lim, target, log) -> dict:
-    """Flipped area and self-intersections of the limit surface (and of a mesh input), warned about when non-zero."""
+def _folds(V_lim, F_lim, target, log, guarded: bool = False) -> dict:
+    """Flipped area and self-intersections of the limit surface (and of a mesh input), warned about when non-zero;
+    ``guarded``: the fit ran with ``--no-crossing``."""
     from mi_loop.metrics import flipped_fraction, self_intersections
 
     if target[0] == "points":
@@ -145,7 +146,9 @@ def _folds(V_lim, F_lim, target, log) -> dict:
     if crossed.any():
         log.warning(f"{out['self_intersecting_faces']} of {len(F_lim)} limit faces "
                     f"({out['self_intersecting_pct']:.3g} %) intersect another part of the surface{source}; "
-                    "more --vertices or a larger --fold may remove them")
+                    + ("more --vertices or a larger --fold may remove them (--no-crossing keeps apart only limit "
+                       "triangles whose control faces share no corner)" if guarded else
+                       "more --vertices, a larger --fold or --no-crossing may remove them"))
     return out
 
 

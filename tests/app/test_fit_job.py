@@ -421,6 +421,8 @@ def test_the_stage_line_names_the_terms_that_are_on():
     assert _stage_line(FitOptions(alpha=0.001, fold=0.0)) == head + "IMLS + 3 x coverage + 0.001 x ARAP"
     assert _stage_line(FitOptions(alpha=0.5, cover=0.0, fold=0.0)) == head + "IMLS + 0.5 x ARAP"
     assert _stage_line(FitOptions(alpha=0.0, cover=1.5, fold=0.1)) == head + "IMLS + 1.5 x coverage + 0.1 x fold"
+    assert _stage_line(FitOptions(alpha=0.0, cover=0.0, fold=0.0, no_crossing=True)) == (
+        head + "IMLS; no step crosses the surface (--no-crossing)")
 
 
 class _Log:
@@ -459,8 +461,14 @@ def test_folds_are_measured_reported_and_warned_about():
                        "normal (a fold, or a part too thin for the control mesh): see render.png; more --vertices "
                        "or a larger --fold may remove it")
     assert crossed == (f"{out['self_intersecting_faces']} of 1280 limit faces ({out['self_intersecting_pct']:.3g} %) "
-                       "intersect another part of the surface; the input has 0 %; more --vertices or a larger "
-                       "--fold may remove them")
+                       "intersect another part of the surface; the input has 0 %; more --vertices, a larger --fold "
+                       "or --no-crossing may remove them")
+    log = _Log()
+    _folds(W, G, ("mesh", V, F), log, guarded=True)          # a fit that ran with --no-crossing: what is left
+    assert log.warned[1] == (f"{out['self_intersecting_faces']} of 1280 limit faces "
+                             f"({out['self_intersecting_pct']:.3g} %) intersect another part of the surface; the "
+                             "input has 0 %; more --vertices or a larger --fold may remove them (--no-crossing keeps "
+                             "apart only limit triangles whose control faces share no corner)")
     # against oriented points (no input mesh): the normals decide, and there is no input share
     P, N = V[::2], V[::2]
     log = _Log()
