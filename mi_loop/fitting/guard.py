@@ -17,8 +17,9 @@ halved, ``old_i + s_i (new_i - old_i)``, until the step
   tessellation of the limit surface.
 
 The points in the way are the corners of the turned triangles and the
-control points a flipped normal or a crossing limit triangle depends on (the
-rows of the limit operator).
+control points a flipped normal depends on (its row of the limit operator);
+the control points of a new crossing pair of limit triangles stop at once (a
+crossing is no shallower for a shorter step).
 Elsewhere the step is taken in full: one folding corner does not stop the
 rest of the surface. After ``halvings`` halvings the points still in the way
 do not move at all; at the old points nothing was turned over, so the step
@@ -89,7 +90,7 @@ class CrossingTest:
         face_ids, uv, self.F_t = tessellate(F, level)
         self.P = limit_matrix(F, n_vertices, face_ids, uv, creases=creases).tocsr()
         self.groups = (np.arange(len(self.F_t)) // 4 ** level, F)
-        self._found_at = self._near = None       # control points where the candidates were found, and they
+        self._near = self._found_at = None       # the candidate pairs, and the control points they were found at
         self._reach = 0.0
         self.refreshes = 0
 

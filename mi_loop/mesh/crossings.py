@@ -223,10 +223,10 @@ def crossing_pairs(V, F) -> np.ndarray:
     -----
     Broad phase (:func:`near_pairs` at reach 0): a uniform grid of cells
     twice the median triangle's bounding-box side; each pair whose boxes
-    meet is found once, in the lowest cell both boxes cover. Narrow phase: two triangles that are not coplanar
-    intersect iff one of their six edges crosses the other triangle, which
-    two signs of tetrahedron volumes and three of the edge against the
-    triangle's sides decide.
+    meet is found once, in the lowest cell both boxes cover. Narrow phase:
+    two triangles that are not coplanar intersect iff one of their six
+    edges crosses the other triangle, which two signs of tetrahedron volumes
+    and three of the edge against the triangle's sides decide.
 
     Examples
     --------
