@@ -68,7 +68,9 @@ def _stage_line(options: FitOptions) -> str:
     parts = [name if weight is None else f"{name} (weight chosen for the noise)"
              if getattr(options, weight) is None else f"{getattr(options, weight):g} x {name}"
              for name, weight in _TERM_WEIGHTS.items() if name in options.terms]
-    guard = "; no step crosses the surface (--no-crossing)" if options.no_crossing else ""
+    from mi_loop.app.inputs import NO_CROSSING_NOTE
+
+    guard = NO_CROSSING_NOTE if options.no_crossing else ""
     return f"fitting: template, limit operator, then Adam on {' + '.join(parts)}{guard}"
 
 

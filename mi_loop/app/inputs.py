@@ -17,8 +17,11 @@ import numpy as np
 from mi_loop import io
 from mi_loop.errors import expected
 
-__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "FitFrame", "FrameReader", "check_template_frame", "load_input",
-           "read_template", "say_handles"]
+__all__ = ["MAX_CENTRE_OFFSET", "MAX_SIZE_RATIO", "NO_CROSSING_NOTE", "FitFrame", "FrameReader", "check_template_frame",
+           "load_input", "read_template", "say_handles"]
+
+#: What the terms line of ``fit`` and ``fit-sequence`` adds with ``--no-crossing``.
+NO_CROSSING_NOTE = "; no step crosses the surface (--no-crossing)"
 
 #: A template's bounding-box diagonal must be within this factor of the data's.
 MAX_SIZE_RATIO = 2.0

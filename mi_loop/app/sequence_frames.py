@@ -145,7 +145,9 @@ class FrameFitter:
         if o.image:
             terms += [f"photos ({len(run.sources.captures)} captures)" if photos
                       else f"image ({o.mode}, {o.views} views)"]
-        guard = "; no step crosses the surface (--no-crossing)" if o.no_crossing else ""
+        from mi_loop.app.inputs import NO_CROSSING_NOTE
+
+        guard = NO_CROSSING_NOTE if o.no_crossing else ""
         log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}{guard}")
 
     def _albedo(self, saved: dict) -> None:

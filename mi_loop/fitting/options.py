@@ -89,12 +89,12 @@ TEMPLATE_DEPTH_HELP = ("octree depth of the automatic template's screened Poisso
                        "7 up to 8000, 8 above{}; a dense scan of a body whose arms lie close to the torso needs 8: "
                        "6 webs the armpits)")
 TEMPLATE_GENUS = at_least(0).or_none("as built")
-NO_CROSSING_HELP = ("keep the limit surface from passing through itself: every step is tested for crossing triangles "
-                    "of a level-2 tessellation, and the control points that would make new ones stay where they "
-                    "were (slower; for parts that come close, such as arms against a body)")
 TEMPLATE_GENUS_HELP = ("the subject's genus (a body: 0): the automatic template's shortest handle loops are cut and "
                        "capped until it has this many, where a fine --template-depth joins parts that touch "
                        "(default: as built)")
+NO_CROSSING_HELP = ("keep the limit surface from passing through itself: every step is tested for crossing triangles "
+                    "of a level-2 tessellation, and the control points that would make new ones stay where they "
+                    "were (slower; for parts that come close, such as arms against a body)")
 
 
 @dataclass

@@ -84,13 +84,22 @@ def _cell_entries(lo, hi, h):
     return keys[order], boxes[order], clo, chi, ny, nz
 
 
+@numba.njit(cache=True, inline="always")
+def _overlap(lo, hi, i, j):
+    """Do boxes i and j meet?"""
+    for d in range(3):
+        if lo[i, d] > hi[j, d] or lo[j, d] > hi[i, d]:
+            return False
+    return True
+
+
 @numba.njit(cache=True)
 def _meet_once(lo, hi, clo, chi, cell, i, j):
     """Do boxes i and j meet, and is this cell the lowest both cover (so that the pair comes once)?"""
     for d in range(3):
-        if lo[i, d] > hi[j, d] or lo[j, d] > hi[i, d] or cell[d] != max(clo[i, d], clo[j, d]):
+        if cell[d] != max(clo[i, d], clo[j, d]):
             return False
-    return True
+    return _overlap(lo, hi, i, j)
 
 
 @numba.njit(cache=True)
@@ -155,10 +164,7 @@ def _member_pairs(F, lo, hi, gpairs, members, starts):
         for a in range(starts[ga], starts[ga + 1]):
             for b in range(starts[gb], starts[gb + 1]):
                 i, j = members[a], members[b]
-                meet = True
-                for d in range(3):
-                    meet &= lo[i, d] <= hi[j, d] and lo[j, d] <= hi[i, d]
-                if meet and not _share_corner(F, i, j):
+                if _overlap(lo, hi, i, j) and not _share_corner(F, i, j):
                     out.append((min(i, j), max(i, j)))
     pairs = np.empty((len(out), 2), dtype=np.int64)
     for k in range(len(out)):
@@ -235,11 +241,7 @@ def crossing_pairs(V, F) -> np.ndarray:
     [[0, 1]]
     """
     V, F = check_triangles(V, F, "crossing_pairs")
-    if len(F) < 2:
-        return np.zeros((0, 2), dtype=np.int64)
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.ascontiguousarray(F, dtype=np.int64)
-    return _sorted(crossing_among(V, F, near_pairs(V, F, 0.0)))
+    return _sorted(crossing_among(V, F, _near(V, F, 0.0)))
 
 
 def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
@@ -284,10 +286,16 @@ def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
         raise ValueError(f"near_pairs(): expected a finite reach >= 0, got {reach!r}")
     if groups is not None:
         group, G = np.asarray(groups[0], dtype=np.int64), np.ascontiguousarray(groups[1], dtype=np.int64)
+        groups = (group, G)
         if group.shape != (len(F),) or G.ndim != 2 or G.shape[1] != 3 or (len(group) and not (
                 0 <= group.min() and group.max() < len(G))):
             raise ValueError(f"near_pairs(): expected groups (group, G): group of shape ({len(F)},) indexing the "
                              f"faces G (g, 3), got group of shape {group.shape} and G of shape {G.shape}")
+    return _near(V, F, reach, groups)
+
+
+def _near(V, F, reach: float, groups=None) -> np.ndarray:
+    """:func:`near_pairs` of a checked mesh."""
     if len(F) < 2:
         return np.zeros((0, 2), dtype=np.int64)
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -296,6 +304,7 @@ def near_pairs(V, F, reach: float, groups=None) -> np.ndarray:
     if groups is None:
         return _sorted(_apart(F, _box_pairs(lo, hi, _cell(lo, hi))))
     # two levels: the groups' boxes first (a control face's limit triangles), then their triangles
+    group, G = groups
     glo, ghi = _group_boxes(lo, hi, group, len(G))
     used = np.flatnonzero(np.isfinite(glo[:, 0]))
     gpairs = _apart(G, used[_box_pairs(glo[used], ghi[used], _cell(glo[used], ghi[used]))])

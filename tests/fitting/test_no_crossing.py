@@ -43,7 +43,8 @@ def test_a_static_fit_with_no_crossing_stays_out_of_itself_where_the_data_overla
         result = fit(P, N, FitOptions(no_crossing=no_crossing, iterations=60), template=template)
         crossed[no_crossing] = len(test.pairs(result.V))
         far = limit_mesh(result.V, result.F, 3)[0][:, 0]
-        np.testing.assert_allclose([far.min(), far.max()], [-0.9, 0.9], atol=0.05)     # the far sides fitted
+        # the far sides fitted (measured: within 0.01 without the guard, 0.035 with it)
+        np.testing.assert_allclose([far.min(), far.max()], [-0.9, 0.9], atol=0.05)
     assert crossed[False] > 0 and crossed[True] == 0
 
 
