@@ -60,7 +60,7 @@ def _grey(rgb) -> np.ndarray:
 
 
 def optical_flow(rgb0, rgb1) -> np.ndarray:
-    """Dense flow from one linear RGB image to another (OpenCV DIS, medium preset): ``(h, w, 2)``, pixels.
+    """Dense flow from one linear RGB image to another (OpenCV DIS, medium preset refined to full resolution).
 
     Parameters
     ----------
@@ -75,6 +75,7 @@ def optical_flow(rgb0, rgb1) -> np.ndarray:
     import cv2
 
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis.setFinestScale(0)             # down to full resolution: a subject of a few thousand pixels
     return dis.calc(_grey(rgb0), _grey(rgb1), None)
 
 

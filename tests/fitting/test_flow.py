@@ -21,6 +21,21 @@ def test_dis_flow_recovers_a_known_shift_of_a_textured_image():
     np.testing.assert_allclose(np.median(flow.reshape(-1, 2), axis=0), [3.0, 2.0], atol=0.1)
 
 
+@pytest.mark.parametrize("dx", [0.3, 0.7])
+def test_dis_flow_follows_a_sub_pixel_shift_of_fine_texture_at_full_resolution(dx):
+    """A frame's motion in a photo is often under a pixel: the flow must resolve it where the texture is fine.
+    The image moved by cubic interpolation; DIS's medium preset alone (finest scale 1) is off by 0.04-0.06 px."""
+    from scipy.ndimage import gaussian_filter, shift
+
+    img = gaussian_filter(np.random.default_rng(0).uniform(size=(96, 96)), 1.5)
+    img = (img - img.min()) / np.ptp(img)
+    a = np.repeat(img[..., None], 3, axis=2)
+    b = np.repeat(shift(img, (0.0, dx), order=3, mode="wrap")[..., None], 3, axis=2)
+    flow = optical_flow(a, b)[16:-16, 16:-16]
+    assert np.mean(np.abs(flow[..., 0] - dx)) < 0.02
+    assert np.mean(np.abs(flow[..., 1])) < 0.02
+
+
 def _rotation_z(deg):
     t = np.radians(deg)
     return np.array([[np.cos(t), -np.sin(t), 0.0], [np.sin(t), np.cos(t), 0.0], [0.0, 0.0, 1.0]])
