@@ -13,15 +13,19 @@ For every frame ``t`` of a sequence in correspondence (vertices ``(T, V, 3)``, o
 - RGB: 20 cameras on a Fibonacci sphere (``mi_loop.render.cameras.fibonacci_cameras``,
   distance 1.9, horizontal field of view 35 degrees, 128 x 128), 64 spp, ``direct`` integrator,
   the default constant environment, smooth vertex normals, a diffuse per-vertex albedo:
-  ``captures.procedural_albedo`` of the frame-0 positions (it moves with the material) or the
-  sequence's own texture colours; ``images/NNNN/transforms.json`` + RGBA PNGs.
+  ``captures.procedural_albedo`` of the frame-0 positions (it moves with the material), the
+  sequence's own texture colours, or a texture fine enough for optical flow to follow
+  (``spot_fine``, ``fox_fine``): :func:`fine_albedo` of the frame-0 positions, on the mesh split
+  twice at its edge midpoints (16 flat triangles per face, the same surface) so that vertex
+  colours carry it;
+  ``images/NNNN/transforms.json`` + RGBA PNGs.
 - ``clean.npz``: the normalised clean vertices ``(T, V, 3)`` and faces (for the evaluation);
   ``meta.json``: normalisation, cameras, noise, seeds, counts, coverage and seconds.
 
 The whole sequence is normalised once, by frame 0: ``V_norm = (V - centre) / scale`` with
 ``centre`` the frame-0 bbox centre and ``scale`` its diagonal. Then::
 
-    .venv/bin/python bench/capture_sequence.py spot fox fox_tex [--frames N] [--out DIR]
+    .venv/bin/python bench/capture_sequence.py spot spot_fine fox fox_tex [--frames N] [--out DIR]
     mi-loop fit-sequence DIR/spot/depth/*.ply --images DIR/spot/images -o fit/
 """
 from __future__ import annotations
@@ -46,7 +50,9 @@ SEQ = REPO.parent / "shared" / "data" / "sequences"
 OUT = REPO / "bench" / "results" / "capture_seq"
 #: name -> (source file, albedo kind, glTF animation or None)
 SEQUENCES = {"spot": (SEQ / "spot_arap_16f.npz", "procedural", None),
+             "spot_fine": (SEQ / "spot_arap_16f.npz", "fine", None),
              "fox": (SEQ / "fox_walk_24f.npz", "procedural", None),
+             "fox_fine": (SEQ / "fox_walk_24f.npz", "fine", None),
              "fox_tex": (SEQ / "Fox.glb", "texture", "Walk")}
 FOX_FRAMES = 24                      # fox_walk_24f.npz: the Walk clip at t = k T / 24, k = 0..23
 DEPTH = dict(azimuths=(-60.0, 0.0, 60.0), elevation=15.0, distance=captures.DISTANCE, fov_x_deg=40.0,
@@ -157,13 +163,44 @@ def near_depth(V, points, radius: float = SEEN_RADIUS) -> float:
     return float(np.isfinite(d).mean())
 
 
+def fine_albedo(V) -> np.ndarray:
+    """Per-vertex RGB in [0.1, 0.9]: three crossed waves of 6-13 cycles per bbox diagonal (a period of 8-18
+    pixels in the photos), the detail a real surface's texture gives optical flow to follow."""
+    f = 2 * np.pi * np.array([[9.0, 4.0, -6.0], [-5.0, 11.0, 3.0], [4.0, -3.0, 12.0]])
+    waves = np.sin(V @ f.T + np.array([0.3, 1.7, 3.1]))
+    grey = 0.5 + 0.4 * np.tanh(1.5 * waves.sum(axis=1, keepdims=True) / 3.0)
+    return np.clip(grey * np.array([1.0, 0.85, 0.7]) + 0.08 * waves, 0.1, 0.9)
+
+
+def midpoint_split(V, F, levels: int = 2):
+    """Split every triangle into 4 at its edge midpoints, ``levels`` times: ``(V, F, W)``, ``W`` the sparse
+    ``(new, old)`` matrix of the new vertices as averages of the old (apply it to every frame)."""
+    import scipy.sparse as sp
+
+    from mi_loop.mesh.geometry import edges
+
+    W = sp.identity(len(V), format="csr")
+    for _ in range(levels):
+        n, E = W.shape[0], edges(F)
+        key = {(int(a), int(b)): n + i for i, (a, b) in enumerate(E)}
+        rows = np.repeat(np.arange(n, n + len(E)), 2)
+        mid = sp.csr_matrix((np.full(2 * len(E), 0.5), (rows, E.ravel())), shape=(n + len(E), n))
+        W = (sp.vstack([sp.identity(n, format="csr"), mid[n:]]) @ W).tocsr()
+        m = np.array([[key[tuple(sorted((int(f[i]), int(f[(i + 1) % 3]))))] for i in range(3)] for f in F])
+        F = np.concatenate([np.stack([F[:, 0], m[:, 0], m[:, 2]], 1), np.stack([F[:, 1], m[:, 1], m[:, 0]], 1),
+                            np.stack([F[:, 2], m[:, 2], m[:, 1]], 1), m])
+    return W @ V, F, W
+
+
 # -- writing ---------------------------------------------------------------------
 def write_frames(out: Path, Vs, F, colors, *, depth_cams, rgb_cams, sigma: float = SIGMA, spp: int = SPP,
-                 seed: int = SEED, log=print) -> list:
+                 seed: int = SEED, log=print, split=None) -> list:
     """Write the depth clouds and RGB captures of normalised frames ``Vs (T, V, 3)``; return per-frame stats.
 
     Depth noise of frame ``t``, camera ``k`` is drawn from ``default_rng([seed, t, k])``; the RGB
-    render of frame ``t``, view ``k`` uses sampler seed ``seed + t * len(rgb_cams) + k``.
+    render of frame ``t``, view ``k`` uses sampler seed ``seed + t * len(rgb_cams) + k``. ``split``,
+    ``(W, F_split)`` of :func:`midpoint_split`: the photos show the split mesh (``colors`` are per split
+    vertex), shaded with the frame's smooth normals carried by ``W``.
     """
     from mi_loop.io import write_capture, write_ply
     from mi_loop.io.emitters import DEFAULT_EMITTERS
@@ -179,8 +216,12 @@ def write_frames(out: Path, Vs, F, colors, *, depth_cams, rgb_cams, sigma: float
                  for k, cam in enumerate(depth_cams)]
         points = np.concatenate(scans)
         write_ply(out / "depth" / f"{t:04d}.ply", points, np.zeros((0, 3), np.int64))
-        views = render_views(V, F, rgb_cams, [dict(e) for e in DEFAULT_EMITTERS], colors=colors,
-                             normals=vertex_normals(V, F), spp=spp, seed=seed + t * len(rgb_cams))
+        shown, faces, normals = V, F, vertex_normals(V, F)
+        if split is not None:
+            shown, faces, normals = split[0] @ V, split[1], split[0] @ normals
+            normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        views = render_views(shown, faces, rgb_cams, [dict(e) for e in DEFAULT_EMITTERS], colors=colors,
+                             normals=normals, spp=spp, seed=seed + t * len(rgb_cams))
         write_capture(out / "images" / f"{t:04d}", views)
         stats.append({"frame": t, "points": [len(s) for s in scans], "n_points": len(points),
                       "seen_area": seen_area(scene, V, F, depth_cams, seed=t),
@@ -245,7 +286,11 @@ def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = No
         raise ValueError(f"write_sequence_capture(): expected one of {sorted(SEQUENCES)}, got '{name}'")
     Vs, F, colors = load_sequence(name, n_frames)
     Vs, centre, scale = normalise(Vs)
-    if colors is None:
+    split = None
+    if SEQUENCES[name][1] == "fine":
+        _, F_split, W = midpoint_split(Vs[0], F)
+        split, colors = (W, F_split), fine_albedo(W @ Vs[0])
+    elif colors is None:
         colors = captures.procedural_albedo(Vs[0])
     depth_cams = depth_cameras(**DEPTH)
     rgb_cams = fibonacci_cameras(RGB["n"], [0, 0, 0], RGB["distance"], fov_x_deg=RGB["fov_x_deg"],
@@ -259,7 +304,7 @@ def write_sequence_capture(name: str, out: Path = OUT, n_frames: int | None = No
     directory.mkdir(parents=True, exist_ok=True)
     _clear_frames(directory)
     np.savez_compressed(directory / "clean.npz", vertices=Vs, faces=F)
-    stats = write_frames(directory, Vs, F, colors, depth_cams=depth_cams, rgb_cams=rgb_cams, log=log)
+    stats = write_frames(directory, Vs, F, colors, depth_cams=depth_cams, rgb_cams=rgb_cams, log=log, split=split)
     path, albedo, animation = SEQUENCES[name]
     meta = {
         "sequence": name, "source": str(path), "animation": animation,
