@@ -302,7 +302,8 @@ class SequenceOptions:
     track_flow : float
         With ``track`` and photos: weight of the camera rays, through where the optical flow carried
         the previous fit's samples, that the graph holds them on (:func:`~mi_loop.fitting.flow.flow_rays`);
-        0 (default): off (on 128-pixel photos the flow's error is as large as a frame's motion).
+        0: off. Where the photos carry texture the rays halve the drift; where the texture is too
+        smooth for the flow to follow, they change nothing measurable.
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -411,10 +412,10 @@ class SequenceOptions:
                                help="with --track: weight of the term that holds each control point, along the "
                                     "surface, where the graph carried it, on mesh frames; point clouds hold 3 times "
                                     "as hard (default %(default)s; 0: off)")
-    track_flow: float = option(0.0, rule=WEIGHT, metavar="W",
+    track_flow: float = option(1.0, rule=WEIGHT, metavar="W",
                                help="with --track and --images: weight of the camera rays that the graph holds the "
                                     "surface's material points on, through where the optical flow between a camera's "
-                                    "photos of consecutive frames carried them (default %(default)s: off)")
+                                    "photos of consecutive frames carried them (default %(default)s; 0: off)")
 
     def __post_init__(self):
         check_fields(self)

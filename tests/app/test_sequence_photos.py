@@ -98,7 +98,7 @@ def test_photos_hold_the_side_that_depth_never_sees(capture, photo_run, tmp_path
 
 @pytest.mark.slow
 def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tmp_path):
-    """``--track`` with photos: the graph carries each frame on the depth and the flow's rays, and the
+    """``--track`` with photos: the graph carries each frame on the depth and the flow's rays (on by default), and the
     strong hold (``--tangential 10``, weighed by the silhouettes) is along the surface only, so the side
     depth never sees still grows with the photos, as close as without the coarse stage. Both runs are
     ``--deterministic``: the image term's reverse render is otherwise not bit-reproducible, and the two
@@ -112,7 +112,7 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
     out, untracked = tmp_path / "out", tmp_path / "untracked"
     settings = [*FAST[:FAST.index("--iterations")], "--iterations", "90", *FAST[FAST.index("--iterations") + 2:]]
     assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
-                 "-o", str(out), "--track", "4", "--tangential", "10", "--track-flow", "1", "--deterministic",
+                 "-o", str(out), "--track", "4", "--tangential", "10", "--deterministic",
                  *settings]) == 0
     assert main(["-q", "fit-sequence", str(depth), "--images", str(images), "--reference", str(clean),
                  "-o", str(untracked), "--deterministic", *settings]) == 0
