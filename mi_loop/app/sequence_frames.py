@@ -20,7 +20,7 @@ from mi_loop import io
 from mi_loop.app.sequence_sources import Sources, read_views
 from mi_loop.io import runs
 
-__all__ = ["FrameFitter", "SequenceRun", "fit_frames"]
+__all__ = ["FrameFitter", "SequenceRun", "fit_frames", "stage_note"]
 
 
 @dataclass(eq=False)
@@ -143,12 +143,14 @@ class FrameFitter:
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
         if o.image:
-            terms += [f"photos ({len(run.sources.captures)} captures)" if photos
+            k = len(run.sources.captures)
+            terms += [f"photos ({k} capture{'' if k == 1 else 's'})" if photos
                       else f"image ({o.mode}, {o.views} views)"]
         from mi_loop.app.inputs import NO_CROSSING_NOTE
 
         guard = NO_CROSSING_NOTE if o.no_crossing else ""
-        log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}{guard}")
+        log.say(f"{len(run.reader)} frames, {n} control vertices; terms: {' + '.join(terms)}{guard}"
+                f"{stage_note(o, photos)}")
 
     def _albedo(self, saved: dict) -> None:
         """The albedo (0.5 grey, or restored with its optimiser's state), and the estimated lighting's saved state."""
@@ -313,6 +315,32 @@ class FrameFitter:
             extra |= {"light_coefficients": np.array(dr.detach(self.photo.lighting.coefficients)),
                       "light_log_gain": np.array(dr.detach(self.photo.lighting.log_gain))}
         return extra
+
+
+def stage_note(options, photos: bool) -> str:
+    """What the terms line says of the coarse stage: ``""`` without ``--track``, else how it carries each frame.
+
+    Parameters
+    ----------
+    options : mi_loop.fitting.options.SequenceOptions
+    photos : bool
+        The frames come with photos (``--images``).
+
+    Examples
+    --------
+    >>> from mi_loop.fitting.options import SequenceOptions
+    >>> stage_note(SequenceOptions(track=10), photos=True)
+    "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays (--track-flow 1)"
+    >>> stage_note(SequenceOptions(track=10, track_flow=0), photos=True)
+    '; each frame first carried by a deformation graph (--track 10)'
+    >>> stage_note(SequenceOptions(), photos=True)
+    ''
+    """
+    if options.track <= 0 or not options.geometric:
+        return ""
+    rays = photos and options.image and options.track_flow > 0
+    return (f"; each frame first carried by a deformation graph (--track {options.track})"
+            + (f", on the optical flow's rays (--track-flow {options.track_flow:g})" if rays else ""))
 
 
 def _weighted(term: str, mesh: float, points: float) -> list:

@@ -88,6 +88,7 @@ def test_a_sequence_with_no_crossing_stays_out_of_itself_in_every_frame(tmp_path
         err = capsys.readouterr().err
         assert code == 0, err
         assert ("no step crosses the surface (--no-crossing)" in err) == bool(flags)
+        assert "; each frame first carried by a deformation graph (--track 4)\n" in err     # mesh frames: no rays
         crossed[bool(flags)] = [len(test.pairs(read_mesh(out / "control" / f"{t:04d}.ply")[0])) for t in range(3)]
     assert crossed[False][-1] > 0
     assert crossed[True] == [0, 0, 0]
