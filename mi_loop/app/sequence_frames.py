@@ -143,7 +143,7 @@ class FrameFitter:
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
         if o.image:
-            k = len(run.sources.captures)
+            k = len(run.sources.captures) if photos else 0
             terms += [f"photos ({k} capture{'' if k == 1 else 's'})" if photos
                       else f"image ({o.mode}, {o.views} views)"]
         from mi_loop.app.inputs import NO_CROSSING_NOTE
