@@ -1,11 +1,13 @@
 """How well the optical flow between a camera's photos of consecutive frames follows the material.
 
 For the simulated captures of ``bench/capture_sequence.py`` (their ``clean.npz`` holds the clean
-frames in correspondence), every clean vertex seen by a photo at frames ``t-1`` and ``t`` (in front
-in a z-buffer of the clean mesh at both) projects to a pixel at each: the true flow. The flow
-computed between the two photos, read there, is kept as ``flow_correspondences`` keeps it
-(foreground 2 pixels inside both masks, forward and backward flows agreeing within 1 pixel), and its
-error against the true flow is reported, with the true motion of the kept vertices, for:
+frames in correspondence), the clean vertices at frame ``t-1`` go through
+:func:`mi_loop.fitting.flow.flow_correspondences` with the photos of ``t-1`` and ``t``, as the limit
+samples of a fit do in ``fit-sequence``: those a photo sees (facing it, in front in a z-buffer of
+the clean surface) and whose flow it keeps (2 pixels inside both masks, forward and backward flows
+agreeing within 1 pixel, ``--consistency``) get a target pixel. Each target is compared with the vertex's projection
+at frame ``t``, the true flow, and the error is reported with the true motion of the kept vertices,
+for:
 
 - ``optical_flow`` (what ``fit-sequence`` uses: DIS, medium preset, refined to full resolution);
 - DIS's medium preset alone (finest scale 1, the flow before 2026-12-07).
@@ -19,69 +21,71 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from capture_sequence import midpoint_split  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURES = ROOT / "bench" / "results" / "capture_seq"
 
 
-def dense(V, F, k: int = 6):
-    """Points on every triangle (barycentric steps of ``1/k``): the clean surface for the z-buffer."""
-    b = np.array([(i, j, k - i - j) for i in range(k + 1) for j in range(k + 1 - i)]) / k
-    return np.einsum("kb,fbd->fkd", b, V[F]).reshape(-1, 3)
-
-
-def medium(a, b):
+def medium(rgb0, rgb1):
+    """DIS's medium preset alone, on the grey images ``optical_flow`` uses."""
     import cv2
 
-    return cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(a, b, None)
+    from mi_loop.fitting.flow import _grey
+
+    return cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(_grey(rgb0), _grey(rgb1), None)
 
 
-def measure(root: Path, frames) -> None:
-    from scipy.ndimage import binary_erosion
-
-    from mi_loop.fitting.flow import _bilinear, _grey, _in_front, optical_flow
+def measure(root: Path, frames, consistency: float = 1.0) -> None:
+    from mi_loop.fitting import flow
     from mi_loop.io.capture import read_capture
-    from mi_loop.render.cameras import project
+    from mi_loop.mesh.geometry import vertex_normals
 
     with np.load(root / "clean.npz") as clean:
         Vs, F = clean["vertices"], clean["faces"]
-    methods = {"optical_flow (full resolution)": lambda a, b: optical_flow(a.rgb, b.rgb),
-               "DIS medium preset alone": lambda a, b: medium(_grey(a.rgb), _grey(b.rgb))}
-    errors, kept, seconds = {k: [] for k in methods}, {k: [] for k in methods}, {k: 0.0 for k in methods}
-    motion = []
+    methods = {"optical_flow (full resolution)": flow.optical_flow, "DIS medium preset alone": medium}
+    errors, motion, shares, seconds = ({k: [] for k in methods} for _ in range(4))
     for t in frames:
         before = list(read_capture(root / "images" / f"{t - 1:04d}" / "transforms.json").views)
         after = list(read_capture(root / "images" / f"{t:04d}" / "transforms.json").views)
-        seen0, seen1 = dense(Vs[t - 1], F), dense(Vs[t], F)
-        for a, b in zip(before, after):
-            cam = a.camera
-            ok = _in_front(cam, Vs[t - 1], seen0, 0.003) & _in_front(cam, Vs[t], seen1, 0.003)
-            p = project(cam, Vs[t - 1])[ok]
-            true = project(cam, Vs[t])[ok] - p
-            fore = binary_erosion(a.mask >= 0.5, iterations=2) & binary_erosion(b.mask >= 0.5, iterations=2)
-            motion.append(np.linalg.norm(true, axis=1))
-            for name, flow in methods.items():
+        V, N, surface = Vs[t - 1], vertex_normals(Vs[t - 1], F), midpoint_split(Vs[t - 1], F)[0]
+        for name, method in methods.items():
+            kept = flow.optical_flow
+            flow.optical_flow = method                         # what flow_correspondences calls
+            try:
                 start = time.perf_counter()
-                fw, bw = flow(a, b), flow(b, a)
-                seconds[name] += time.perf_counter() - start
-                u = _bilinear(fw, p)
-                q = p + u
-                px = np.clip(p.astype(np.int64), 0, [cam.width - 1, cam.height - 1])
-                qx = np.clip(np.nan_to_num(q).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
-                keep = (fore[px[:, 1], px[:, 0]] & fore[qx[:, 1], qx[:, 0]]
-                        & (np.linalg.norm(u + _bilinear(bw, q), axis=1) <= 1.0))
-                errors[name].append(np.linalg.norm(u - true, axis=1)[keep])
-                kept[name].append(keep)
-    moved = np.concatenate(motion)
+                corr = flow.flow_correspondences(before, after, V, N, surface, consistency=consistency)
+                seconds[name].append(time.perf_counter() - start)
+            finally:
+                flow.optical_flow = kept
+            p0, p1 = project_all(corr, V), project_all(corr, Vs[t])
+            errors[name].append(np.linalg.norm(corr.target - p1, axis=1))
+            motion[name].append(np.linalg.norm(p1 - p0, axis=1))
+            shares[name].append(len(corr.sample) / len(V))
     for name in methods:
-        e, k = np.concatenate(errors[name]), np.concatenate(kept[name])
-        print(f"| {root.name} | {name} | {100 * k.mean():.0f} % | {np.median(e):.3f} / {e.mean():.3f} / "
-              f"{np.quantile(e, 0.9):.3f} | {np.median(moved[k]):.3f} / {moved[k].mean():.3f} | "
-              f"{1000 * seconds[name] / (2 * len(errors[name])):.0f} |", flush=True)
+        e, m = np.concatenate(errors[name]), np.concatenate(motion[name])
+        print(f"| {root.name} | {name} | {np.mean(shares[name]):.2f} | {np.median(e):.3f} / {e.mean():.3f} / "
+              f"{np.quantile(e, 0.9):.3f} | {np.median(m):.3f} / {m.mean():.3f} | "
+              f"{1000 * np.median(seconds[name]):.0f} |", flush=True)
+
+
+def project_all(corr, V) -> np.ndarray:
+    """Each correspondence's vertex projected into its own camera at frame ``t-1``, ``(k, 2)``."""
+    from mi_loop.render.cameras import project
+
+    out = np.empty((len(corr.sample), 2))
+    for i, cam in enumerate(corr.cameras):
+        rows = corr.camera == i
+        out[rows] = project(cam, V[corr.sample[rows]])
+    return out
 
 
 def main() -> None:
@@ -89,14 +93,16 @@ def main() -> None:
     ap.add_argument("captures", nargs="+", help="capture names under --root (capture_sequence.py's)")
     ap.add_argument("--root", type=Path, default=CAPTURES)
     ap.add_argument("--frames", default="1:6", help="START:STOP of the frames t (flow from t-1 to t)")
+    ap.add_argument("--consistency", type=float, default=1.0,
+                    help="largest disagreement of the forward and backward flows kept, pixels (fit-sequence: 1)")
     args = ap.parse_args()
     start, stop = (int(v) for v in args.frames.split(":"))
     print(f"frames {start}-{stop - 1}, {os.cpu_count()} cores; pixels\n")
-    print("| capture | flow | kept | error median / mean / p90 | true motion of the kept, median / mean | "
-          "ms per flow |")
+    print("| capture | flow | kept per vertex (20 photos) | error median / mean / p90 | "
+          "true motion of the kept, median / mean | ms per frame pair (20 photos, both directions) |")
     print("|---|---|---|---|---|---|")
     for name in args.captures:
-        measure(args.root / name, range(start, stop))
+        measure(args.root / name, range(start, stop), args.consistency)
 
 
 if __name__ == "__main__":

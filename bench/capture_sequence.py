@@ -174,7 +174,9 @@ def fine_albedo(V) -> np.ndarray:
 
 def midpoint_split(V, F, levels: int = 2):
     """Split every triangle into 4 at its edge midpoints, ``levels`` times: ``(V, F, W)``, ``W`` the sparse
-    ``(new, old)`` matrix of the new vertices as averages of the old (apply it to every frame)."""
+    ``(new, old)`` matrix of the new vertices as averages of the old (apply it to every frame).
+    ``mi_loop.datasets._split_midpoints`` makes the same triangles with other first corners, which changes
+    the renders' sampling: the captures measured in BENCHMARKS.md were written with this order."""
     import scipy.sparse as sp
 
     from mi_loop.mesh.geometry import edges

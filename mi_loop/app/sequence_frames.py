@@ -121,6 +121,7 @@ class FrameFitter:
         self.op = LimitOperator(run.F, n, fid, uv, derivatives=True)   # normals: facing data only
         self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
         self.graph = self.matrices = None
+        self.rays = _rays_on(o, photos)    # the coarse stage holds material points on the optical flow's rays
         self.crossings = None
         if o.no_crossing:      # the fold guard's crossing test, of every frame's steps and the coarse stage's
             from mi_loop.fitting.guard import CrossingTest
@@ -142,10 +143,11 @@ class FrameFitter:
         terms += _weighted("fold barrier", o.fold_weight(mesh_frame=True), o.fold_weight(mesh_frame=False))
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
-        if o.image:
-            k = len(run.sources.captures) if photos else 0
-            terms += [f"photos ({k} capture{'' if k == 1 else 's'})" if photos
-                      else f"image ({o.mode}, {o.views} views)"]
+        if o.image and photos:
+            k = len(run.sources.captures)
+            terms += [f"photos ({k} capture{'' if k == 1 else 's'})"]
+        elif o.image:
+            terms += [f"image ({o.mode}, {o.views} views)"]
         from mi_loop.app.inputs import NO_CROSSING_NOTE
 
         guard = NO_CROSSING_NOTE if o.no_crossing else ""
@@ -176,7 +178,7 @@ class FrameFitter:
 
             views = read_views(run.sources.captures[t], t, frame)
             flow = None
-            if (o.flow > 0 or self._track_flow()) and t > 0:    # the previous frame's photos, camera by camera
+            if (o.flow > 0 or self.rays) and t > 0:    # the previous frame's photos, camera by camera
                 if self.views is None:               # after a resume
                     from mi_loop.io.capture import read_capture
 
@@ -197,16 +199,11 @@ class FrameFitter:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
 
-    def _track_flow(self) -> bool:
-        """Whether the coarse stage holds material points on the optical flow's rays (``--track-flow``)."""
-        o = self.run.options
-        return self.graph is not None and o.image and bool(self.run.sources.captures) and o.track_flow > 0
-
     def _rays(self, images):
         """The coarse stage's rays (:func:`~mi_loop.fitting.flow.sample_rays`), or None."""
         from mi_loop.fitting.flow import sample_rays
 
-        if not self._track_flow() or images is None or images.flow is None:
+        if not self.rays or images is None or images.flow is None:
             return None
         run = self.run
         return sample_rays(*images.flow, run.x, run.F, self.matrices, (run.norm.scale, run.norm.centre))
@@ -338,9 +335,14 @@ def stage_note(options, photos: bool) -> str:
     """
     if options.track <= 0 or not options.geometric:
         return ""
-    rays = photos and options.image and options.track_flow > 0
     return (f"; each frame first carried by a deformation graph (--track {options.track})"
-            + (f", on the optical flow's rays (--track-flow {options.track_flow:g})" if rays else ""))
+            + (f", on the optical flow's rays (--track-flow {options.track_flow:g})" if _rays_on(options, photos)
+               else ""))
+
+
+def _rays_on(options, photos: bool) -> bool:
+    """Whether the coarse stage (``--track``) holds material points on the optical flow's rays (``--track-flow``)."""
+    return options.track > 0 and options.geometric and photos and options.image and options.track_flow > 0
 
 
 def _weighted(term: str, mesh: float, points: float) -> list:
