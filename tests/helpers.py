@@ -111,6 +111,20 @@ def one_line_error(capsys, argv, status=1):
     return lines[0]
 
 
+def interrupt_at_frame(monkeypatch, frame):
+    """Make ``fit_frame`` (:mod:`mi_loop.fitting.sequence`) raise KeyboardInterrupt when it starts ``frame``,
+    as Ctrl-C would."""
+    import mi_loop.fitting.sequence
+
+    real = mi_loop.fitting.sequence.fit_frame
+
+    def fake(*args, **kwargs):
+        if kwargs.get("frame", args[7] if len(args) > 7 else None) == frame:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(mi_loop.fitting.sequence, "fit_frame", fake)
+
+
 def run_console(*args, timeout=300) -> subprocess.CompletedProcess:
     """Run the installed ``mi-loop`` console script with ``args``, stdin closed; return the process.
 

@@ -142,7 +142,8 @@ def begin(out: Path, frames: list, rows: list, options: SequenceOptions, templat
     ------
     ValueError
         A template in another frame or invalid, a ``sequence.json`` missing or incomplete on
-        ``--resume``, ``--image-only`` without a surface to render (:func:`settle_options`).
+        ``--resume``, photos given to a resumed run fitted without them or missing from one fitted to
+        them, ``--image-only`` without a surface to render (:func:`settle_options`).
     """
     photos = bool(sources.captures)
     if rows:
@@ -151,6 +152,12 @@ def begin(out: Path, frames: list, rows: list, options: SequenceOptions, templat
         if missing:
             fail(_RESUME, "a sequence.json with centre, scale, lr, camera_box and options",
                  f"'{out / 'sequence.json'}' without {', '.join(missing)}")
+        fitted, given = len(record.images or []), len(sources.captures or [])
+        if fitted and not given:          # the same inputs: a run does not change what it fits midway
+            fail(_RESUME, f"--images (the run was fitted to {_captures(fitted)}, as its sequence.json records)",
+                 "none")
+        if given and not fitted:
+            fail(_RESUME, "no --images (the run was fitted without photos)", _captures(given))
         recorded = SequenceOptions.from_dict(record.options)
         reader = FrameReader(frames, recorded.n_points, recorded.seed, log)
         first = reader(0)
@@ -164,6 +171,10 @@ def begin(out: Path, frames: list, rows: list, options: SequenceOptions, templat
     if note:
         log.say(note)
     return _start(out, reader, first, options, template, variant, sources, fps, log)
+
+
+def _captures(k: int) -> str:
+    return f"{k} capture{'' if k == 1 else 's'}"
 
 
 def _start(out, reader, first, options, template, variant, sources, fps, log) -> Start:

@@ -21,7 +21,7 @@ from mi_loop import datasets, io
 from mi_loop.app.cli import main
 from mi_loop.fitting.options import SequenceOptions
 
-from helpers import REPO, one_line_error, parse_glb, slot_template_runs, sphere_mesh
+from helpers import REPO, interrupt_at_frame, one_line_error, parse_glb, slot_template_runs, sphere_mesh
 
 #: Options of a quick run: 4 views of 24x24 pixels, 2 spp, 20 iterations per frame (30 for the first),
 #: an image refresh every 10, 2000 points.
@@ -130,17 +130,6 @@ def test_fit_sequence_writes_every_frame_with_the_templates_faces(inputs, image_
     sampler, = doc["animations"][0]["samplers"]
     np.testing.assert_array_equal(read(sampler["input"]).ravel(), (np.arange(3) / 12.5).astype(np.float32))
     assert json.loads((image_run / "sequence.json").read_text())["fps"] == 12.5
-
-
-def interrupt_at_frame(monkeypatch, frame):
-    """Make fit_frame raise KeyboardInterrupt when it starts ``frame`` (as Ctrl-C would)."""
-    real = mi_loop.fitting.sequence.fit_frame
-
-    def fake(*args, **kwargs):
-        if kwargs.get("frame", args[7] if len(args) > 7 else None) == frame:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-    monkeypatch.setattr(mi_loop.fitting.sequence, "fit_frame", fake)
 
 
 def test_resume_without_images_equals_the_uninterrupted_run(inputs, geometric_run, tmp_path,

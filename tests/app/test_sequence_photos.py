@@ -23,7 +23,7 @@ from mi_loop.mesh.sampling import closest_points, sample_surface
 from mi_loop.render.cameras import fibonacci_cameras
 from mi_loop.render.captures import render_views
 
-from helpers import one_line_error
+from helpers import interrupt_at_frame, one_line_error
 
 RADII = (0.30, 0.33, 0.36)
 FAST = ["--vertices", "160", "--iterations", "30", "--first-iterations", "60", "--image-every", "2",
@@ -121,6 +121,25 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
         assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
     options = json.loads((out / "sequence.json").read_text())["options"]
     assert options["track"] == 4 and options["track_flow"] == 1.0
+
+
+def test_a_resume_must_be_given_the_photos_of_the_run_and_no_others(capture, tmp_path, monkeypatch, capsys):
+    """Without ``--images`` a run fitted to photos would go on without them (and one fitted without photos would
+    take them): both are refused, and the finished frame stays."""
+    depth, images, clean = capture
+    for name, first, then, message in (
+            ("with", ["--images", str(images)], [],
+             "expected --images (the run was fitted to 3 captures, as its sequence.json records), got none"),
+            ("without", [], ["--images", str(images)],
+             "expected no --images (the run was fitted without photos), got 3 captures")):
+        out = tmp_path / name
+        interrupt_at_frame(monkeypatch, 1)
+        assert main(["-q", "fit-sequence", str(depth), "-o", str(out), *first, *FAST]) == 130
+        monkeypatch.undo()
+        capsys.readouterr()
+        line = one_line_error(capsys, ["-q", "fit-sequence", str(depth), "-o", str(out), *then, "--resume"])
+        assert line == f"mi-loop: error: fit-sequence --resume: {message}"
+        assert [r["frame"] for r in rows(out)] == ["0"]
 
 
 def test_photos_for_the_template_only_still_give_the_photo_strip(capture, tmp_path):
