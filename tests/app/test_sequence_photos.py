@@ -120,7 +120,37 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
         assert back_error(out, t) < 0.02 * 2 * RADII[t], (t, back_error(out, t), back_error(untracked, t))
         assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
     options = json.loads((out / "sequence.json").read_text())["options"]
-    assert options["track"] == 4 and options["track_flow"] == 1.0
+    assert options["track"] == 4 and options["track_flow"] == 1.0 and options["pinned_hold"] == 10.0
+
+
+@pytest.mark.slow
+def test_a_resumed_coarse_stage_pins_to_the_same_first_frame(capture, tmp_path, monkeypatch):
+    """The flow's rays are pinned to the first frame's photos and fit (``sample_rays`` with a keyframe). A run
+    stopped at frame 2 reads both back on ``--resume`` (the photos and ``state/0000.npz``) and finishes with
+    the uninterrupted run's control points, bit for bit (``--deterministic``)."""
+    from mi_loop.fitting import flow
+
+    depth, images, clean = capture
+    calls = []
+    real = flow.pin_to_keyframe
+
+    def spy(key, current, corr, **kwargs):
+        pinned = real(key, current, corr, **kwargs)
+        calls.append(int(np.any(pinned.target != corr.target, axis=1).sum()))
+        return pinned
+    monkeypatch.setattr(flow, "pin_to_keyframe", spy)
+    runs = {name: tmp_path / name for name in ("whole", "resumed")}
+    args = ["--images", str(images), "--reference", str(clean), "--track", "4", "--deterministic", *FAST]
+    assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["whole"]), *args]) == 0
+    assert len(calls) == 2 and min(calls) > 20, calls            # frames 1 and 2: tracks that moved targets
+    interrupt_at_frame(monkeypatch, 2)
+    assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["resumed"]), *args]) == 130
+    monkeypatch.undo()
+    assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["resumed"]), *args, "--resume"]) == 0
+    for t in range(3):
+        V, _ = io.read_mesh(runs["resumed"] / "control" / f"{t:04d}.ply")
+        V_ref, _ = io.read_mesh(runs["whole"] / "control" / f"{t:04d}.ply")
+        np.testing.assert_array_equal(V, V_ref, err_msg=f"frame {t}")
 
 
 def test_a_resume_must_be_given_the_photos_of_the_run_and_no_others(capture, tmp_path, monkeypatch, capsys):

@@ -139,7 +139,101 @@ def test_the_coarse_stage_turns_with_a_texture_sliding_over_a_shape_that_stays(s
     P, N = (Vl - centre) / scale, Nl
     turn = {}
     for name, r in (("points", None), ("rays", rays)):
-        X, _ = track(graph, x, mats, P, N, steps=8, rays=r)
+        X, info = track(graph, x, mats, P, N, steps=8, rays=r)
         turn[name] = _turn_about_z(V, X * scale + centre)
+        pinned = np.flatnonzero(info["pinned"])                   # the samples whose ray counts at the end
+        assert set(pinned) <= set(rays[0]) and len(pinned) > (0.8 * len(np.unique(rays[0])) if r is not None else -1)
+        assert r is not None or len(pinned) == 0
     assert abs(turn["points"]) < 0.5, turn
     assert abs(turn["rays"] - 4.0) < 1.0, turn
+
+
+def _textured_views(shift_xy, flat_left: bool = False):
+    """Two 96 px photos from one camera: fine texture, and the same moved by ``shift_xy`` pixels (cubic)."""
+    from scipy.ndimage import gaussian_filter, shift
+
+    from mi_loop.io.views import Camera, View
+
+    img = gaussian_filter(np.random.default_rng(1).uniform(size=(96, 96)), 1.5)
+    img = 0.1 + 0.8 * (img - img.min()) / np.ptp(img)
+    if flat_left:
+        img[:, :48] = 0.5
+    cam = Camera(np.eye(4), 80.0, 80.0, 48.0, 48.0, 96, 96)
+
+    def view(a, name):
+        rgb = np.repeat(np.clip(a, 0, 1)[..., None], 3, axis=2).astype(np.float32)
+        return View(cam, rgb, np.ones((96, 96), np.float32), name)
+
+    moved = shift(img, (shift_xy[1], shift_xy[0]), order=3, mode="nearest")
+    return view(img, "a.png"), view(moved, "b.png")
+
+
+def test_pinning_to_the_first_frame_takes_the_chained_error_away():
+    """Targets carried by a chain of flows are off by up to 0.8 px; tracked again from the first frame's pixels
+    they are within 0.05 px of where the texture went. A sample the first photo did not see keeps its target."""
+    from mi_loop.fitting.flow import Correspondences, Keyframe, pin_to_keyframe
+
+    motion = np.array([2.6, -1.3])
+    a, b = _textured_views(motion)
+    rng = np.random.default_rng(2)
+    p0 = rng.uniform(20, 76, size=(60, 2))
+    chained = p0 + motion + rng.uniform(-0.8, 0.8, size=p0.shape)
+    pixel = p0[None].copy()
+    pixel[0, 5] = np.nan
+    corr = Correspondences(np.arange(60), chained, [a.camera], np.zeros(60, np.int64))
+    pinned = pin_to_keyframe(Keyframe([a], pixel), [b], corr)
+    err = np.linalg.norm(pinned.target - (p0 + motion), axis=1)
+    assert np.median(np.linalg.norm(chained - (p0 + motion), axis=1)) > 0.4
+    assert np.max(np.delete(err, 5)) < 0.05, np.sort(err)[-5:]
+    np.testing.assert_array_equal(pinned.target[5], chained[5])
+    np.testing.assert_array_equal(pinned.sample, corr.sample)
+
+
+def test_pinning_keeps_the_chained_target_where_the_texture_is_flat():
+    """Lucas-Kanade cannot place a point on a flat patch: those keep the chained target, the textured ones move."""
+    from mi_loop.fitting.flow import Correspondences, Keyframe, pin_to_keyframe
+
+    motion = np.array([1.5, 0.5])
+    a, b = _textured_views(motion, flat_left=True)
+    p0 = np.array([[15.0, 30.0], [20.0, 60.0], [70.0, 30.0], [75.0, 60.0]])       # two flat, two textured
+    chained = p0 + motion + 0.6
+    corr = Correspondences(np.arange(4), chained, [a.camera], np.zeros(4, np.int64))
+    pinned = pin_to_keyframe(Keyframe([a], p0[None]), [b], corr)
+    np.testing.assert_array_equal(pinned.target[:2], chained[:2])
+    assert np.all(np.linalg.norm(pinned.target[2:] - (p0[2:] + motion), axis=1) < 0.05)
+
+
+def test_pinning_needs_the_first_frames_cameras():
+    import dataclasses
+
+    from mi_loop.fitting.flow import Correspondences, Keyframe, pin_to_keyframe
+
+    a, b = _textured_views((1.0, 0.0))
+    corr = Correspondences(np.arange(1), np.array([[40.0, 40.0]]), [a.camera], np.zeros(1, np.int64))
+    key = Keyframe([a], np.array([[[39.0, 40.0]]]))
+    with pytest.raises(ValueError) as e:
+        pin_to_keyframe(key, [b, b], corr)
+    assert str(e.value) == "pin_to_keyframe(): expected as many photos as the first frame (1), got 2"
+    moved = dataclasses.replace(b, camera=dataclasses.replace(b.camera, fx=90.0))
+    with pytest.raises(ValueError) as e:
+        pin_to_keyframe(key, [moved], corr)
+    assert str(e.value) == ("pin_to_keyframe(): expected the same camera for photo 0 at both frames, "
+                            "got 'a.png' and 'b.png'")
+
+
+def test_the_keyframe_holds_the_pixels_of_the_samples_its_photos_see(sliding_sphere):
+    """Each photo's pixel of a sample is its projection where the sample faces the camera and is in front, NaN
+    on the far side."""
+    from mi_loop.fitting.flow import keyframe
+    from mi_loop.render.cameras import project
+
+    V, F, Vl, Nl, before, after = sliding_sphere
+    key = keyframe(before, Vl, Nl, Vl)
+    assert key.pixel.shape == (len(before), len(Vl), 2)
+    for i, v in enumerate(before):
+        seen = np.isfinite(key.pixel[i]).all(1)
+        towards = np.einsum("kd,kd->k", Nl, v.camera.c2w[:3, 3] - Vl) / np.linalg.norm(v.camera.c2w[:3, 3] - Vl,
+                                                                                        axis=1)
+        assert not seen[towards < 0].any()
+        assert seen[towards > 0.9].mean() > 0.9
+        np.testing.assert_allclose(key.pixel[i][seen], project(v.camera, Vl[seen]))
