@@ -304,6 +304,10 @@ class SequenceOptions:
         the previous fit's samples, that the graph holds them on (:func:`~mi_loop.fitting.flow.flow_rays`);
         0: off. Where the photos carry texture the rays halve the drift; where the texture is too
         smooth for the flow to follow, they change nothing measurable.
+    pinned_hold : float
+        With the flow's rays: the tangential hold of a control point whose limit support the rays
+        pinned, relative to one they did not (:func:`~mi_loop.fitting.track.pinned_hold`): what the
+        photos pinned is held harder than what the graph alone carried; 1: the same.
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -416,6 +420,10 @@ class SequenceOptions:
                                help="with --track and --images: weight of the camera rays that the graph holds the "
                                     "surface's material points on, through where the optical flow between a camera's "
                                     "photos of consecutive frames carried them (default %(default)s; 0: off)")
+    pinned_hold: float = option(10.0, rule=WEIGHT, metavar="K",
+                                help="with the flow's rays (--track-flow): hold the control points that the rays "
+                                     "pinned K times as hard along the surface as --tangential (default "
+                                     "%(default)s; 1: the same)")
 
     def __post_init__(self):
         check_fields(self)

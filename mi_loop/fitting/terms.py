@@ -348,7 +348,7 @@ class Tangential(Term):
     weight : float
         Weight of the mean (the distance terms' units: squared lengths).
     held : (n,) float array-like, optional
-        ``h_i`` in [0, 1] (default: all 1).
+        ``h_i >= 0`` (default: all 1).
     reach : float, optional
         ``c`` (lengths of the control points); default: ``rho(s) = s``.
 

@@ -181,7 +181,8 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         ``residual`` (RMS point-to-plane distance of the kept correspondences, per step),
         ``kept`` (their share of the samples, per step), ``rays`` (the share of the rays kept, per
         step), ``held`` ((k,) bool: the samples whose correspondence counts at the returned control
-        points; :func:`anchor_weights`) and the nodes' motions ``R`` ((g, 3, 3)) and ``t`` ((g, 3)).
+        points; :func:`anchor_weights`), ``pinned`` ((k,) bool: the samples whose ray counts there) and
+        the nodes' motions ``R`` ((g, 3, 3)) and ``t`` ((g, 3)).
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -238,7 +239,10 @@ def track(graph: DeformationGraph, V, matrices, points, normals, tree=None, *, s
         info["residual"].append(float(np.sqrt(np.mean(rp ** 2))) if len(rp) else float("nan"))
         info["kept"].append(len(keep) / len(Q))
     X = graph.deform(V, R, t)
-    info["held"] = _correspondences(matrices, X, tree, normals, trim)[2]
+    Q, _, info["held"] = _correspondences(matrices, X, tree, normals, trim)
+    info["pinned"] = np.zeros(len(Q), dtype=bool)
+    if rays is not None and len(rays[0]):
+        info["pinned"][rays[0][_ray_offsets(Q, rays, trim)[1]]] = True
     info["R"], info["t"] = R, t
     return X, info
 
@@ -281,14 +285,21 @@ def _ray_rows(M3, G, Q, rays, trim: float):
     ``J^T J - (d^T J)^T (d^T J)``, and its gradient ``J^T P (q - o)``.
     """
     sample, origin, direction = rays
-    r = Q[sample] - origin
-    r -= np.sum(r * direction, axis=1, keepdims=True) * direction                   # P (q - o)
-    dist = np.linalg.norm(r, axis=1)
-    keep = np.flatnonzero(dist <= trim * np.median(dist) + 1e-12)
+    r, keep = _ray_offsets(Q, rays, trim)
     J = M3[np.ravel(3 * sample[keep, None] + np.arange(3))] @ G
     Jd = _dots(direction[keep]) @ J
     w = 1.0 / max(len(keep), 1)
     return w * (J.T @ J - Jd.T @ Jd).toarray(), w * (J.T @ r[keep].ravel()), len(keep) / len(sample)
+
+
+def _ray_offsets(Q, rays, trim: float):
+    """``(r, keep)``: each ray's sample's offset from it, ``(I - d d^T)(q - o)``, and the rays that count
+    (offset within ``trim`` times the median)."""
+    sample, origin, direction = rays
+    r = Q[sample] - origin
+    r -= np.sum(r * direction, axis=1, keepdims=True) * direction                   # P (q - o)
+    dist = np.linalg.norm(r, axis=1)
+    return r, np.flatnonzero(dist <= trim * np.median(dist) + 1e-12)
 
 
 def _correspondences(matrices, X, tree, normals, trim: float):
@@ -355,6 +366,36 @@ def anchor_weights(M, held, lower: float = 0.5, upper: float = 0.9):
     covered = W.T @ np.asarray(held, dtype=np.float64)
     share = np.divide(covered, total, out=np.zeros_like(total), where=total > 0)
     return np.clip((share - lower) / (upper - lower), 0.0, 1.0)
+
+
+def pinned_hold(M, pinned, factor: float) -> np.ndarray:
+    """How much harder to hold each control point where photos pinned its limit support: ``1 + (factor - 1) r``.
+
+    ``r_i = sum_s |M_si| pinned_s / sum_s |M_si|`` is the share of point ``i``'s
+    support whose optical-flow ray counted at the coarse stage's end (:func:`track`'s
+    ``pinned``): there the stage followed the material, not only the surface.
+
+    Parameters
+    ----------
+    M : (k, n) scipy.sparse matrix
+        Limit positions of the samples (:func:`mi_loop.limit_matrix`).
+    pinned : (k,) bool array-like
+        Samples whose ray counts.
+    factor : float
+        The hold of a point whose whole support is pinned, relative to one with none.
+
+    Returns
+    -------
+    (n,) float NumPy array
+
+    Examples
+    --------
+    >>> import scipy.sparse as sp
+    >>> M = sp.csr_matrix(np.array([[0.5, 0.5, 0.0], [0.0, 0.25, 0.75]]))
+    >>> np.round(pinned_hold(M, [True, False], 10.0), 4).tolist()       # shares 1, 2/3, 0
+    [10.0, 7.0, 1.0]
+    """
+    return 1.0 + (float(factor) - 1.0) * anchor_weights(M, pinned, 0.0, 1.0)
 
 
 def in_silhouettes(views, points, margin: int = 2) -> np.ndarray:
