@@ -12,18 +12,10 @@ for:
 - ``optical_flow`` (what ``fit-sequence`` uses: DIS, medium preset, refined to full resolution);
 - DIS's medium preset alone (finest scale 1, the flow before 2026-12-07).
 
-``--keyframe`` measures instead what :func:`mi_loop.fitting.flow.pin_to_keyframe` does with those
-targets (``optical_flow``'s): each is tracked again from the vertex's pixel in the first frame's
-photos (the :class:`~mi_loop.fitting.flow.Keyframe` of the clean frame 0). Per frame: the share of
-the targets pinned, and the error of the pinned ones before and after; the targets it does not pin
-keep the chained error. In a fit the chained targets also carry the drift of the frames before,
-which the pin does not see; here they start from the clean frame ``t-1``.
-
 Usage::
 
     .venv/bin/python bench/capture_sequence.py spot spot_fine
     PYTHONPATH=. .venv/bin/python bench/bench_flow.py spot spot_fine --frames 1:6
-    PYTHONPATH=. .venv/bin/python bench/bench_flow.py spot spot_fine --frames 1:16 --keyframe
 """
 from __future__ import annotations
 
@@ -85,35 +77,6 @@ def measure(root: Path, frames, consistency: float = 1.0) -> None:
               f"{1000 * np.median(seconds[name]):.0f} |", flush=True)
 
 
-def measure_keyframe(root: Path, frames) -> None:
-    from mi_loop.fitting import flow
-    from mi_loop.io.capture import read_capture
-    from mi_loop.mesh.geometry import vertex_normals
-
-    with np.load(root / "clean.npz") as clean:
-        Vs, F = clean["vertices"], clean["faces"]
-
-    def views(t):
-        return list(read_capture(root / "images" / f"{t:04d}" / "transforms.json").views)
-
-    key = flow.keyframe(views(0), Vs[0], vertex_normals(Vs[0], F), midpoint_split(Vs[0], F)[0])
-    before = views(frames[0] - 1)
-    for t in frames:
-        after = views(t)
-        V, N, surface = Vs[t - 1], vertex_normals(Vs[t - 1], F), midpoint_split(Vs[t - 1], F)[0]
-        corr = flow.flow_correspondences(before, after, V, N, surface)
-        start = time.perf_counter()
-        pinned = flow.pin_to_keyframe(key, after, corr)
-        ms = 1000 * (time.perf_counter() - start)
-        moved = np.any(pinned.target != corr.target, axis=1)
-        p1 = project_all(corr, Vs[t])
-        chained, now = (np.linalg.norm(c.target[moved] - p1[moved], axis=1) for c in (corr, pinned))
-        total = np.linalg.norm(p1[moved] - project_all(corr, Vs[0])[moved], axis=1)
-        print(f"| {root.name} | {t} | {moved.mean():.2f} | {np.mean(chained):.3f} / {np.quantile(chained, 0.9):.3f} | "
-              f"{np.mean(now):.3f} / {np.quantile(now, 0.9):.3f} | {np.median(total):.1f} | {ms:.0f} |", flush=True)
-        before = after
-
-
 def project_all(corr, V) -> np.ndarray:
     """Each correspondence's vertex projected into its own camera at frame ``t-1``, ``(k, 2)``."""
     from mi_loop.render.cameras import project
@@ -132,18 +95,9 @@ def main() -> None:
     ap.add_argument("--frames", default="1:6", help="START:STOP of the frames t (flow from t-1 to t)")
     ap.add_argument("--consistency", type=float, default=1.0,
                     help="largest disagreement of the forward and backward flows kept, pixels (fit-sequence: 1)")
-    ap.add_argument("--keyframe", action="store_true",
-                    help="measure the targets pinned to the first frame's photos (pin_to_keyframe) instead")
     args = ap.parse_args()
     start, stop = (int(v) for v in args.frames.split(":"))
     print(f"frames {start}-{stop - 1}, {os.cpu_count()} cores; pixels\n")
-    if args.keyframe:
-        print("| capture | frame | share pinned | chained error of the pinned, mean / p90 | pinned error, mean / p90 | "
-              "their motion since frame 0, median | ms (20 photos) |")
-        print("|---|---|---|---|---|---|---|")
-        for name in args.captures:
-            measure_keyframe(args.root / name, list(range(start, stop)))
-        return
     print("| capture | flow | kept per vertex (20 photos) | error median / mean / p90 | "
           "true motion of the kept, median / mean | ms per frame pair (20 photos, both directions) |")
     print("|---|---|---|---|---|---|")

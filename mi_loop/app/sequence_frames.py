@@ -122,7 +122,6 @@ class FrameFitter:
         self.vertex_op = LimitOperator(run.F, n, *vertex_samples(run.F, n), derivatives=True)
         self.graph = self.matrices = None
         self.rays = _rays_on(o, photos)    # the coarse stage holds material points on the optical flow's rays
-        self.key = None                    # the first frame's photos and where they saw the samples
         self.crossings = None
         if o.no_crossing:      # the fold guard's crossing test, of every frame's steps and the coarse stage's
             from mi_loop.fitting.guard import CrossingTest
@@ -200,23 +199,14 @@ class FrameFitter:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
 
-    def _rays(self, t: int, images):
-        """The coarse stage's rays at frame ``t`` (:func:`~mi_loop.fitting.flow.sample_rays`, pinned to the first
-        frame's photos), or None."""
-        from mi_loop.fitting.flow import fit_keyframe, sample_rays
+    def _rays(self, images):
+        """The coarse stage's rays (:func:`~mi_loop.fitting.flow.sample_rays`), or None."""
+        from mi_loop.fitting.flow import sample_rays
 
         if not self.rays or images is None or images.flow is None:
             return None
         run = self.run
-        to_world = (run.norm.scale, run.norm.centre)
-        if self.key is None:             # the first frame's photos and fit: at frame 1, or read after a resume
-            from mi_loop.io.capture import read_capture
-
-            views, x = ((images.flow[0], run.x) if t == 1 else
-                        (list(read_capture(run.sources.captures[0]).views),
-                         runs.read_state(runs.state_path(run.out, 0)).x))
-            self.key = fit_keyframe(views, x, run.F, self.matrices, to_world)
-        return sample_rays(*images.flow, run.x, run.F, self.matrices, to_world, key=self.key)
+        return sample_rays(*images.flow, run.x, run.F, self.matrices, (run.norm.scale, run.norm.centre))
 
     def _held(self, x0, tracked: dict, complete: bool):
         """How hard to hold each tracked control point ``x0`` (:func:`~mi_loop.fitting.track.anchor_weights`).
@@ -288,7 +278,7 @@ class FrameFitter:
         if self.graph is not None and t > 0:
             from mi_loop.fitting.track import track
 
-            x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(t, images),
+            x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(images),
                                 ray=run.options.track_flow)
             if self.crossings is not None:       # the graph's step crosses nothing new either
                 from mi_loop.fitting.guard import hold_apart
@@ -339,8 +329,8 @@ def stage_note(options, photos: bool) -> str:
     --------
     >>> from mi_loop.fitting.options import SequenceOptions
     >>> stage_note(SequenceOptions(track=10), photos=True)  # doctest: +NORMALIZE_WHITESPACE
-    "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays from the first
-    frame's photos (--track-flow 1), what they pinned held 10 times as hard (--pinned-hold 10)"
+    "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
+    (--track-flow 1), what they pinned held 10 times as hard (--pinned-hold 10)"
     >>> stage_note(SequenceOptions(track=10, track_flow=0), photos=True)
     '; each frame first carried by a deformation graph (--track 10)'
     >>> stage_note(SequenceOptions(), photos=True)
@@ -349,7 +339,7 @@ def stage_note(options, photos: bool) -> str:
     if options.track <= 0 or not options.geometric:
         return ""
     return (f"; each frame first carried by a deformation graph (--track {options.track})"
-            + (f", on the optical flow's rays from the first frame's photos (--track-flow {options.track_flow:g}), "
+            + (f", on the optical flow's rays (--track-flow {options.track_flow:g}), "
                f"what they pinned held {options.pinned_hold:g} times as hard (--pinned-hold {options.pinned_hold:g})"
                if _rays_on(options, photos) else ""))
 

@@ -19,15 +19,7 @@ nothing. The photos see the slide. For each camera whose photos of frames
 :class:`~mi_loop.fitting.terms.Flow` then pulls each sample's projection at
 frame ``t`` onto its target pixel; :func:`flow_rays` turns the targets into camera
 rays, which the coarse stage of a frame (:func:`mi_loop.fitting.track.track`) holds
-each sample on.
-
-A chain of frame-to-frame flows adds up its errors: a tenth of a pixel a frame
-is a pixel after ten. :func:`pin_to_keyframe` matches each target again against
-the first frame's photos, where the sample's material point is where the first
-fit put it (:class:`Keyframe`): a Lucas-Kanade track (OpenCV's pyramidal KLT)
-from the sample's first-frame pixel, started at the chained target. What the first
-frame's photos did not see, or where the texture is too flat to track, keeps
-its chained target. No file I/O here.
+each sample on. No file I/O here.
 """
 from __future__ import annotations
 
@@ -35,8 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Correspondences", "Keyframe", "flow_correspondences", "flow_rays", "fit_keyframe", "keyframe",
-           "optical_flow", "pin_to_keyframe", "sample_rays"]
+__all__ = ["Correspondences", "flow_correspondences", "flow_rays", "optical_flow", "sample_rays"]
 
 
 @dataclass(frozen=True)
@@ -126,22 +117,6 @@ def _in_front(camera, Q, surface, tolerance: float) -> np.ndarray:
     return out
 
 
-def _same_camera(where: str, i: int, a, b) -> None:
-    """Photo ``i`` of two frames must come from the same camera (pose, size, focal length)."""
-    from mi_loop.errors import fail
-
-    if not (np.allclose(a.camera.c2w, b.camera.c2w) and a.camera.width == b.camera.width
-            and a.camera.height == b.camera.height and np.isclose(a.camera.fx, b.camera.fx)):
-        fail(where, f"the same camera for photo {i} at both frames", f"'{a.name}' and '{b.name}'")
-
-
-def _seen(camera, Q, N, surface) -> np.ndarray:
-    """The samples ``Q`` (normals ``N``) that face ``camera`` and are not hidden by ``surface``: indices."""
-    diag = float(np.linalg.norm(np.ptp(surface, axis=0)))
-    facing = np.einsum("kd,kd->k", N, camera.c2w[:3, 3] - Q) > 0
-    return np.flatnonzero(facing & _in_front(camera, Q, surface, 0.01 * diag))
-
-
 def flow_correspondences(previous, current, Q, N, surface, *, consistency: float = 1.0,
                          margin: int = 2) -> Correspondences:
     """Correspondences of the limit samples from the flow between two frames' photos (module docstring).
@@ -176,11 +151,15 @@ def flow_correspondences(previous, current, Q, N, surface, *, consistency: float
     if len(previous) != len(current):
         fail("flow_correspondences", f"as many photos at both frames ({len(previous)})", f"{len(current)}")
     Q, N, surface = (np.asarray(a, dtype=np.float64) for a in (Q, N, surface))
+    diag = float(np.linalg.norm(np.ptp(surface, axis=0)))
     samples, targets, cams = [], [], []
     for i, (a, b) in enumerate(zip(previous, current)):
-        _same_camera("flow_correspondences", i, a, b)
+        if not (np.allclose(a.camera.c2w, b.camera.c2w) and a.camera.width == b.camera.width
+                and a.camera.height == b.camera.height and np.isclose(a.camera.fx, b.camera.fx)):
+            fail("flow_correspondences", f"the same camera for photo {i} at both frames", f"'{a.name}' and '{b.name}'")
         cam = a.camera
-        seen = _seen(cam, Q, N, surface)
+        facing = np.einsum("kd,kd->k", N, cam.c2w[:3, 3] - Q) > 0
+        seen = np.flatnonzero(facing & _in_front(cam, Q, surface, 0.01 * diag))
         if len(seen) == 0:
             continue
         p = project(cam, Q[seen])
@@ -189,7 +168,8 @@ def flow_correspondences(previous, current, Q, N, surface, *, consistency: float
         u = _bilinear(fw, p)
         q = p + u
         back = _bilinear(bw, q)
-        inside = _inside(cam, q) & _inside(cam, p)
+        inside = ((q[:, 0] >= 0) & (q[:, 0] < cam.width) & (q[:, 1] >= 0) & (q[:, 1] < cam.height)
+                  & (p[:, 0] >= 0) & (p[:, 0] < cam.width) & (p[:, 1] >= 0) & (p[:, 1] < cam.height))
         px = np.clip(p.astype(np.int64), 0, [cam.width - 1, cam.height - 1])
         qx = np.clip(np.nan_to_num(q).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
         keep = (inside & fore[px[:, 1], px[:, 0]] & fore[qx[:, 1], qx[:, 0]]
@@ -202,123 +182,6 @@ def flow_correspondences(previous, current, Q, N, surface, *, consistency: float
         return Correspondences(np.zeros(0, np.int64), np.zeros((0, 2)), cameras, np.zeros(0, np.int64))
     return Correspondences(np.concatenate(samples).astype(np.int64), np.concatenate(targets),
                            cameras, np.concatenate(cams).astype(np.int64))
-
-
-@dataclass(frozen=True)
-class Keyframe:
-    """The first frame's photos and where each limit sample showed in them: its material point's pixels.
-
-    Attributes
-    ----------
-    views : list of mi_loop.io.views.View
-        The first frame's photos.
-    pixel : (c, k, 2) float64 NumPy array
-        Sample ``k``'s pixel in photo ``c``; NaN where the photo did not see it (facing away, hidden, or
-        within ``margin`` pixels of the mask's edge).
-    """
-
-    views: list
-    pixel: np.ndarray
-
-
-def keyframe(views, Q, N, surface, *, margin: int = 2) -> Keyframe:
-    """The :class:`Keyframe` of the first frame's photos and its fit's limit samples.
-
-    Parameters
-    ----------
-    views : list of mi_loop.io.views.View
-        The first frame's photos.
-    Q, N : (k, 3) float NumPy arrays
-        Limit samples of the first frame's fit and their unit normals, in the photos' units.
-    surface : (m, 3) float NumPy array
-        A dense tessellation of that fit's limit surface, same units: what hides what.
-    margin : int
-        Pixels next to the masks' edges are left out.
-
-    Returns
-    -------
-    Keyframe
-    """
-    from scipy.ndimage import binary_erosion
-
-    from mi_loop.render.cameras import project
-
-    Q, N, surface = (np.asarray(a, dtype=np.float64) for a in (Q, N, surface))
-    pixel = np.full((len(views), len(Q), 2), np.nan)
-    for i, v in enumerate(views):
-        seen = _seen(v.camera, Q, N, surface)
-        p = project(v.camera, Q[seen])
-        fore = binary_erosion(v.mask >= 0.5, iterations=margin)
-        px = np.clip(np.nan_to_num(p).astype(np.int64), 0, [v.camera.width - 1, v.camera.height - 1])
-        keep = np.isfinite(p).all(1) & _inside(v.camera, p) & fore[px[:, 1], px[:, 0]]
-        pixel[i, seen[keep]] = p[keep]
-    return Keyframe(list(views), pixel)
-
-
-def _inside(camera, p) -> np.ndarray:
-    return (p[:, 0] >= 0) & (p[:, 0] < camera.width) & (p[:, 1] >= 0) & (p[:, 1] < camera.height)
-
-
-def pin_to_keyframe(key: Keyframe, current, corr: Correspondences, *, consistency: float = 0.5,
-                    window: int = 15, levels: int = 2) -> Correspondences:
-    """The correspondences' targets matched again against the first frame's photos (module docstring).
-
-    Each sample the first frame's photo saw is tracked by pyramidal Lucas-Kanade
-    (OpenCV) from its first-frame pixel to the photo at frame ``t``, started at its
-    chained target; the track counts where it converges, the track back lands within
-    ``consistency`` pixels of where it started, and it ends inside the photo's mask.
-    Where a track does not count, the chained target stays.
-
-    Parameters
-    ----------
-    key : Keyframe
-        The first frame's photos and samples' pixels.
-    current : list of mi_loop.io.views.View
-        The photos of frame ``t``; photo ``i`` from the same camera as ``key.views[i]``.
-    corr : Correspondences
-        The chained correspondences (:func:`flow_correspondences`) of frame ``t``.
-    consistency : float
-        Largest distance, in pixels, between a sample's first-frame pixel and its track back.
-    window, levels : int
-        Lucas-Kanade's window (pixels) and pyramid levels above the full resolution.
-
-    Returns
-    -------
-    Correspondences
-        The same samples and cameras; ``target`` pinned where the track counts.
-
-    Raises
-    ------
-    ValueError
-        Not as many photos at both frames, or another camera in a pair.
-    """
-    import cv2
-
-    from mi_loop.errors import fail
-
-    if len(key.views) != len(current):
-        fail("pin_to_keyframe", f"as many photos as the first frame ({len(key.views)})", f"{len(current)}")
-    target = np.array(corr.target, dtype=np.float64)
-    lk = dict(winSize=(window, window), maxLevel=levels, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-3))
-    for i, (a, b) in enumerate(zip(key.views, current)):
-        _same_camera("pin_to_keyframe", i, a, b)
-        at = np.flatnonzero(corr.camera == i)
-        p0 = key.pixel[i, corr.sample[at]]
-        at, p0 = at[np.isfinite(p0).all(1)], p0[np.isfinite(p0).all(1)]
-        if len(at) == 0:
-            continue
-        g0, g1 = _grey(a.rgb), _grey(b.rgb)
-        start = (p0 - 0.5).astype(np.float32)               # OpenCV's pixel centres are at whole numbers
-        q, ok, _ = cv2.calcOpticalFlowPyrLK(g0, g1, start, (target[at] - 0.5).astype(np.float32), None, **lk)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(g1, g0, q, start.copy(), None, **lk)
-        q = q.astype(np.float64) + 0.5
-        qx = np.clip(q.astype(np.int64), 0, [b.camera.width - 1, b.camera.height - 1])
-        good = (ok[:, 0].astype(bool) & ok_back[:, 0].astype(bool) & _inside(b.camera, q)
-                & (np.linalg.norm(back.astype(np.float64) + 0.5 - p0, axis=1) <= consistency)
-                & (b.mask[qx[:, 1], qx[:, 0]] >= 0.5))
-        target[at[good]] = q[good]
-    return Correspondences(corr.sample, target, corr.cameras, corr.camera)
 
 
 def flow_rays(corr: Correspondences):
@@ -360,31 +223,12 @@ def flow_rays(corr: Correspondences):
     return np.asarray(corr.sample, dtype=np.int64), origin, direction
 
 
-def _world_samples(x, F, matrices, to_world):
-    """``(Q, N, surface)``: the limit samples of control points ``x`` (fit units), their normals and a dense
-    limit surface, in the photos' world."""
-    from mi_loop.fitting.track import limit_samples
-    from mi_loop.subdiv.masks import limit_mesh
-
-    scale, centre = float(to_world[0]), np.asarray(to_world[1], dtype=np.float64)
-    x = np.asarray(x, dtype=np.float64)
-    Q, N = limit_samples(matrices, x)
-    return Q * scale + centre, N, limit_mesh(x * scale + centre, F, level=2)[0]
-
-
-def fit_keyframe(views, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0))) -> Keyframe:
-    """The :class:`Keyframe` of the first frame's photos ``views`` and its fit ``x`` (in the fit's units,
-    as :func:`sample_rays` takes it)."""
-    return keyframe(views, *_world_samples(x, F, matrices, to_world))
-
-
-def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0)), key: Keyframe | None = None):
+def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0))):
     """The rays each seen limit sample of a fit must lie on at the next frame, in the fit's units.
 
     :func:`flow_correspondences` of the samples of ``x``, seen in the photos ``previous``
-    (frame ``t-1``) and carried by the flow to ``current`` (frame ``t``), pinned to the
-    first frame's photos by :func:`pin_to_keyframe` where ``key`` is given, as
-    :func:`flow_rays` mapped back from the photos' world by ``to_world``: what
+    (frame ``t-1``) and carried by the flow to ``current`` (frame ``t``), as :func:`flow_rays`
+    mapped back from the photos' world by ``to_world``: what
     :func:`mi_loop.fitting.track.track` takes as ``rays``.
 
     Parameters
@@ -399,8 +243,6 @@ def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0
         ``(k, n)`` limit positions and derivatives of the samples (:func:`mi_loop.limit_matrix`).
     to_world : (float, (3,) float array)
         ``(scale, centre)``: a point ``p`` of the fit is ``p * scale + centre`` in the photos' world.
-    key : Keyframe or None
-        The first frame's (:func:`fit_keyframe`, same samples), or None for the chained flow alone.
 
     Returns
     -------
@@ -409,9 +251,12 @@ def sample_rays(previous, current, x, F, matrices, to_world=(1.0, (0.0, 0.0, 0.0
     origin, direction : (r, 3) float64 NumPy arrays
         The rays' origins (fit units) and unit directions.
     """
+    from mi_loop.fitting.track import limit_samples
+    from mi_loop.subdiv.masks import limit_mesh
+
     scale, centre = float(to_world[0]), np.asarray(to_world[1], dtype=np.float64)
-    corr = flow_correspondences(previous, current, *_world_samples(x, F, matrices, to_world))
-    if key is not None:
-        corr = pin_to_keyframe(key, current, corr)
-    sample, origin, direction = flow_rays(corr)
+    x = np.asarray(x, dtype=np.float64)
+    Q, N = limit_samples(matrices, x)
+    surface = limit_mesh(x * scale + centre, F, level=2)[0]
+    sample, origin, direction = flow_rays(flow_correspondences(previous, current, Q * scale + centre, N, surface))
     return sample, (origin - centre) / scale, direction

@@ -124,25 +124,25 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
 
 
 @pytest.mark.slow
-def test_a_resumed_coarse_stage_pins_to_the_same_first_frame(capture, tmp_path, monkeypatch):
-    """The flow's rays are pinned to the first frame's photos and fit (``sample_rays`` with a keyframe). A run
-    stopped at frame 2 reads both back on ``--resume`` (the photos and ``state/0000.npz``) and finishes with
-    the uninterrupted run's control points, bit for bit (``--deterministic``)."""
+def test_a_resumed_photo_run_with_the_flows_rays_equals_the_uninterrupted_one(capture, tmp_path, monkeypatch):
+    """``--track`` with photos: the coarse stage holds samples on the optical flow's rays, and the fine solve holds
+    what they pinned harder. A run stopped at frame 2 reads the previous frame's photos back on ``--resume`` and
+    finishes with the uninterrupted run's control points, bit for bit (``--deterministic``)."""
     from mi_loop.fitting import flow
 
     depth, images, clean = capture
     calls = []
-    real = flow.pin_to_keyframe
+    real = flow.sample_rays
 
-    def spy(key, current, corr, **kwargs):
-        pinned = real(key, current, corr, **kwargs)
-        calls.append(int(np.any(pinned.target != corr.target, axis=1).sum()))
-        return pinned
-    monkeypatch.setattr(flow, "pin_to_keyframe", spy)
+    def spy(*args, **kwargs):
+        rays = real(*args, **kwargs)
+        calls.append(len(rays[0]))
+        return rays
+    monkeypatch.setattr(flow, "sample_rays", spy)
     runs = {name: tmp_path / name for name in ("whole", "resumed")}
     args = ["--images", str(images), "--reference", str(clean), "--track", "4", "--deterministic", *FAST]
     assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["whole"]), *args]) == 0
-    assert len(calls) == 2 and min(calls) > 20, calls            # frames 1 and 2: tracks that moved targets
+    assert len(calls) == 2 and min(calls) > 20, calls            # frames 1 and 2
     interrupt_at_frame(monkeypatch, 2)
     assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["resumed"]), *args]) == 130
     monkeypatch.undo()
