@@ -392,12 +392,11 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
         (:mod:`mi_loop.fitting.track`): the control points are held there along the surface
         (:class:`~mi_loop.fitting.terms.Tangential`, weight ``options.tangential``), each by its weight
         in ``held`` (:func:`~mi_loop.fitting.track.anchor_weights`: how far the coarse stage is to be
-        trusted there; more than 1 where photos pinned it). With ``complete`` data the hold also lets go
-        beyond :data:`TANGENTIAL_REACH`:
-        where the data cover the whole surface, a part that found none is one the stage lost (a limb
-        that swung farther than the correspondences reach); partial depth leaves parts unseen, not lost,
-        and holds them quadratically, :data:`POINTS_HOLD` times as hard (the tracked shape is the best
-        guess the geometry gives).
+        trusted there; more than 1 where photos pinned it). With ``complete`` data the hold also lets
+        go beyond :data:`TANGENTIAL_REACH`: where the data cover the whole surface, a part that found
+        none is one the stage lost (a limb that swung farther than the correspondences reach); partial
+        depth leaves parts unseen, not lost, and holds them quadratically, :data:`POINTS_HOLD` times as
+        hard (the tracked shape is the best guess the geometry gives).
     previous : (n, 3) float array-like, optional
         The previous frame's fit, ARAP's rest shape when ``x0`` is not it (a tracked start): where the coarse
         stage bent a part the data do not hold (a limb it lost), ARAP restores the part's fitted shape
