@@ -302,7 +302,7 @@ class SequenceOptions:
     track_flow : float
         With ``track`` and photos: weight of the camera rays, through where the optical flow carried
         the previous fit's samples, that the graph holds them on (:func:`~mi_loop.fitting.flow.flow_rays`);
-        0: off. Where the photos carry texture the rays halve the drift; where the texture is too
+        0: off. Where the photos carry texture the rays cut the drift by a third; where the texture is too
         smooth for the flow to follow, they change nothing measurable.
     pinned_hold : float
         With the flow's rays: the tangential hold of a control point whose limit support the rays
