@@ -78,7 +78,7 @@ def measure(root: Path, frames, consistency: float = 1.0) -> None:
 
 
 def project_all(corr, V) -> np.ndarray:
-    """Each correspondence's vertex projected into its own camera at frame ``t-1``, ``(k, 2)``."""
+    """Each correspondence's vertex of ``V`` (a frame's clean vertices) projected into its own camera, ``(k, 2)``."""
     from mi_loop.render.cameras import project
 
     out = np.empty((len(corr.sample), 2))

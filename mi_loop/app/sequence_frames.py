@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mi_loop import io
-from mi_loop.app.sequence_sources import Sources, read_views
+from mi_loop.app.sequence_sources import Sources, captures_phrase, read_views
 from mi_loop.io import runs
 
 __all__ = ["FrameFitter", "SequenceRun", "fit_frames", "stage_note"]
@@ -144,8 +144,7 @@ class FrameFitter:
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]
         if o.image and photos:
-            k = len(run.sources.captures)
-            terms += [f"photos ({k} capture{'' if k == 1 else 's'})"]
+            terms += [f"photos ({captures_phrase(len(run.sources.captures))})"]
         elif o.image:
             terms += [f"image ({o.mode}, {o.views} views)"]
         from mi_loop.app.inputs import NO_CROSSING_NOTE

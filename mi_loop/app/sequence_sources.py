@@ -16,7 +16,7 @@ import numpy as np
 from mi_loop import io
 from mi_loop.errors import expected, fail
 
-__all__ = ["Sources", "read_sources", "read_views"]
+__all__ = ["Sources", "captures_phrase", "read_sources", "read_views"]
 
 
 @dataclass(frozen=True)
@@ -90,6 +90,17 @@ def read_sources(frames: list, images, emitters, reference, selection: slice | N
         ref = select_frames(frames, selection, "fit-sequence --frames")
         log.say("frames in correspondence: the correspondence drift is measured against them")
     return Sources(captures, emitters, ref)
+
+
+def captures_phrase(k: int) -> str:
+    """How messages count captures (``--images``).
+
+    Examples
+    --------
+    >>> captures_phrase(1), captures_phrase(3)
+    ('1 capture', '3 captures')
+    """
+    return f"{k} capture{'' if k == 1 else 's'}"
 
 
 def read_views(path: Path, t: int, frame) -> list:

@@ -17,7 +17,7 @@ import numpy as np
 
 from mi_loop import io
 from mi_loop.app.inputs import FrameReader
-from mi_loop.app.sequence_sources import read_views
+from mi_loop.app.sequence_sources import captures_phrase, read_views
 from mi_loop.errors import expected, fail
 from mi_loop.fitting.options import SequenceOptions
 from mi_loop.io import runs
@@ -154,10 +154,10 @@ def begin(out: Path, frames: list, rows: list, options: SequenceOptions, templat
                  f"'{out / 'sequence.json'}' without {', '.join(missing)}")
         fitted, given = len(record.images or []), len(sources.captures or [])
         if fitted and not given:          # the same inputs: a run does not change what it fits midway
-            fail(_RESUME, f"--images (the run was fitted to {_captures(fitted)}, as its sequence.json records)",
+            fail(_RESUME, f"--images (the run was fitted to {captures_phrase(fitted)}, as its sequence.json records)",
                  "none")
         if given and not fitted:
-            fail(_RESUME, "no --images (the run was fitted without photos)", _captures(given))
+            fail(_RESUME, "no --images (the run was fitted without photos)", captures_phrase(given))
         recorded = SequenceOptions.from_dict(record.options)
         reader = FrameReader(frames, recorded.n_points, recorded.seed, log)
         first = reader(0)
@@ -171,10 +171,6 @@ def begin(out: Path, frames: list, rows: list, options: SequenceOptions, templat
     if note:
         log.say(note)
     return _start(out, reader, first, options, template, variant, sources, fps, log)
-
-
-def _captures(k: int) -> str:
-    return f"{k} capture{'' if k == 1 else 's'}"
 
 
 def _start(out, reader, first, options, template, variant, sources, fps, log) -> Start:
