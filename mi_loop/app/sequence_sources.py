@@ -95,6 +95,15 @@ def read_sources(frames: list, images, emitters, reference, selection: slice | N
 def captures_phrase(k: int) -> str:
     """How messages count captures (``--images``).
 
+    Parameters
+    ----------
+    k : int
+        The number of captures.
+
+    Returns
+    -------
+    str
+
     Examples
     --------
     >>> captures_phrase(1), captures_phrase(3)
