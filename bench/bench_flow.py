@@ -12,10 +12,14 @@ for:
 - ``optical_flow`` (what ``fit-sequence`` uses: DIS, medium preset, refined to full resolution);
 - DIS's medium preset alone (finest scale 1, the flow before 2026-12-07).
 
+``--gap K`` measures the flow from frame ``t-K`` to ``t`` instead, what ``fit-sequence
+--track-key K`` adds to the coarse stage.
+
 Usage::
 
     .venv/bin/python bench/capture_sequence.py spot spot_fine
     PYTHONPATH=. .venv/bin/python bench/bench_flow.py spot spot_fine --frames 1:6
+    PYTHONPATH=. .venv/bin/python bench/bench_flow.py spot_fine fox_fine --frames 4:12 --gap 4
 """
 from __future__ import annotations
 
@@ -44,7 +48,7 @@ def medium(rgb0, rgb1):
     return cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(_grey(rgb0), _grey(rgb1), None)
 
 
-def measure(root: Path, frames, consistency: float = 1.0) -> None:
+def measure(root: Path, frames, consistency: float = 1.0, gap: int = 1) -> None:
     from mi_loop.fitting import flow
     from mi_loop.io.capture import read_capture
     from mi_loop.mesh.geometry import vertex_normals
@@ -54,9 +58,9 @@ def measure(root: Path, frames, consistency: float = 1.0) -> None:
     methods = {"optical_flow (full resolution)": flow.optical_flow, "DIS medium preset alone": medium}
     errors, motion, shares, seconds = ({k: [] for k in methods} for _ in range(4))
     for t in frames:
-        before = list(read_capture(root / "images" / f"{t - 1:04d}" / "transforms.json").views)
+        before = list(read_capture(root / "images" / f"{t - gap:04d}" / "transforms.json").views)
         after = list(read_capture(root / "images" / f"{t:04d}" / "transforms.json").views)
-        V, N, surface = Vs[t - 1], vertex_normals(Vs[t - 1], F), midpoint_split(Vs[t - 1], F)[0]
+        V, N, surface = Vs[t - gap], vertex_normals(Vs[t - gap], F), midpoint_split(Vs[t - gap], F)[0]
         for name, method in methods.items():
             kept = flow.optical_flow
             flow.optical_flow = method                         # what flow_correspondences calls
@@ -92,9 +96,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", help="capture names under --root (capture_sequence.py's)")
     ap.add_argument("--root", type=Path, default=CAPTURES)
-    ap.add_argument("--frames", default="1:6", help="START:STOP of the frames t (flow from t-1 to t)")
+    ap.add_argument("--frames", default="1:6", help="START:STOP of the frames t (flow from t-GAP to t)")
     ap.add_argument("--consistency", type=float, default=1.0,
                     help="largest disagreement of the forward and backward flows kept, pixels (fit-sequence: 1)")
+    ap.add_argument("--gap", type=int, default=1,
+                    help="flow from frame t-GAP to t (fit-sequence: 1, and K with --track-key K)")
     args = ap.parse_args()
     start, stop = (int(v) for v in args.frames.split(":"))
     print(f"frames {start}-{stop - 1}, {os.cpu_count()} cores; pixels\n")
@@ -102,7 +108,7 @@ def main() -> None:
           "true motion of the kept, median / mean | ms per frame pair (20 photos, both directions) |")
     print("|---|---|---|---|---|---|")
     for name in args.captures:
-        measure(args.root / name, range(start, stop), args.consistency)
+        measure(args.root / name, range(start, stop), args.consistency, args.gap)
 
 
 if __name__ == "__main__":

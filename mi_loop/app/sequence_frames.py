@@ -198,14 +198,25 @@ class FrameFitter:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
 
-    def _rays(self, images):
+    def _rays(self, t: int, images):
         """The coarse stage's rays (:func:`~mi_loop.fitting.flow.sample_rays`), or None."""
         from mi_loop.fitting.flow import sample_rays
 
         if not self.rays or images is None or images.flow is None:
             return None
         run = self.run
-        return sample_rays(*images.flow, run.x, run.F, self.matrices, (run.norm.scale, run.norm.centre))
+        to_world = (run.norm.scale, run.norm.centre)
+        rays = sample_rays(*images.flow, run.x, run.F, self.matrices, to_world)
+        key = run.options.track_key
+        if key > 1 and t >= key:             # and the flow from frame t-key's photos, that frame's fit carried
+            from mi_loop.io.capture import read_capture
+
+            views = list(read_capture(run.sources.captures[t - key]).views)
+            if len(views) == len(images.flow[1]):
+                x = runs.read_state(runs.state_path(run.out, t - key)).x
+                more = sample_rays(views, images.flow[1], x, run.F, self.matrices, to_world)
+                rays = tuple(np.concatenate([a, b]) for a, b in zip(rays, more))
+        return rays
 
     def _held(self, x0, tracked: dict, complete: bool):
         """How hard to hold each tracked control point ``x0`` (:func:`~mi_loop.fitting.track.anchor_weights`).
@@ -277,7 +288,7 @@ class FrameFitter:
         if self.graph is not None and t > 0:
             from mi_loop.fitting.track import track
 
-            x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(images),
+            x0, tracked = track(self.graph, run.x, self.matrices, P, N, rays=self._rays(t, images),
                                 ray=run.options.track_flow)
             if self.crossings is not None:       # the graph's step crosses nothing new either
                 from mi_loop.fitting.guard import hold_apart
@@ -330,6 +341,10 @@ def stage_note(options, photos: bool) -> str:
     >>> stage_note(SequenceOptions(track=10), photos=True)  # doctest: +NORMALIZE_WHITESPACE
     "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
     (--track-flow 1), what they pinned held 10 times as hard (--pinned-hold 10)"
+    >>> stage_note(SequenceOptions(track=10, track_key=4), photos=True)  # doctest: +NORMALIZE_WHITESPACE
+    "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
+    (--track-flow 1) and on those from 4 frames before (--track-key 4), what they pinned held 10 times
+    as hard (--pinned-hold 10)"
     >>> stage_note(SequenceOptions(track=10, track_flow=0), photos=True)
     '; each frame first carried by a deformation graph (--track 10)'
     >>> stage_note(SequenceOptions(), photos=True)
@@ -337,10 +352,15 @@ def stage_note(options, photos: bool) -> str:
     """
     if options.track <= 0 or not options.geometric:
         return ""
-    return (f"; each frame first carried by a deformation graph (--track {options.track})"
-            + (f", on the optical flow's rays (--track-flow {options.track_flow:g}), "
-               f"what they pinned held {options.pinned_hold:g} times as hard (--pinned-hold {options.pinned_hold:g})"
-               if _rays_on(options, photos) else ""))
+    note = f"; each frame first carried by a deformation graph (--track {options.track})"
+    if not _rays_on(options, photos):
+        return note
+    key = options.track_key
+    note += f", on the optical flow's rays (--track-flow {options.track_flow:g})"
+    if key > 1:
+        note += f" and on those from {key} frames before (--track-key {key})"
+    hold = options.pinned_hold
+    return note + f", what they pinned held {hold:g} times as hard (--pinned-hold {hold:g})"
 
 
 def _rays_on(options, photos: bool) -> bool:

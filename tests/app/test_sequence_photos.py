@@ -125,28 +125,41 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
 
 @pytest.mark.slow
 def test_a_resumed_photo_run_with_the_flows_rays_equals_the_uninterrupted_one(capture, tmp_path, monkeypatch):
-    """``--track`` with photos: the coarse stage holds samples on the optical flow's rays, and the fine solve holds
-    what they pinned harder. A run stopped at frame 2 reads the previous frame's photos back on ``--resume`` and
+    """``--track`` with photos: the coarse stage holds samples on the optical flow's rays, from the previous frame's
+    photos and (``--track-key 2``) from those of two frames before, and the fine solve holds what they pinned
+    harder. A run stopped at frame 2 reads the photos and the fits of frames 1 and 0 back on ``--resume`` and
     finishes with the uninterrupted run's control points, bit for bit (``--deterministic``)."""
     from mi_loop.fitting import flow
+    from mi_loop.io import runs as run_files
 
     depth, images, clean = capture
     calls = []
     real = flow.sample_rays
 
-    def spy(*args, **kwargs):
-        rays = real(*args, **kwargs)
-        calls.append(len(rays[0]))
+    def spy(previous, current, x, *args, **kwargs):
+        rays = real(previous, current, x, *args, **kwargs)
+        calls.append((previous[0].rgb, current[0].rgb, np.array(x), len(rays[0])))
         return rays
     monkeypatch.setattr(flow, "sample_rays", spy)
     runs = {name: tmp_path / name for name in ("whole", "resumed")}
-    args = ["--images", str(images), "--reference", str(clean), "--track", "4", "--deterministic", *FAST]
+    args = ["--images", str(images), "--reference", str(clean), "--track", "4", "--track-key", "2", "--deterministic",
+            *FAST]
     assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["whole"]), *args]) == 0
-    assert len(calls) == 2 and min(calls) > 20, calls            # frames 1 and 2
+    photo = [io.read_capture(images / f"{t:04d}" / "transforms.json").views[0].rgb for t in range(3)]
+    fitted = [run_files.read_state(run_files.state_path(runs["whole"], t)).x for t in range(3)]
+    # frame 1 from frame 0; frame 2 from frame 1, then from frame 0 (the key)
+    assert [len(calls), *(c[3] > 20 for c in calls)] == [3, True, True, True], [c[3] for c in calls]
+    for (previous, current, x, _), (t0, t) in zip(calls, [(0, 1), (1, 2), (0, 2)]):
+        np.testing.assert_array_equal(previous, photo[t0])
+        np.testing.assert_array_equal(current, photo[t])
+        np.testing.assert_array_equal(x, fitted[t0])
     interrupt_at_frame(monkeypatch, 2)
     assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["resumed"]), *args]) == 130
     monkeypatch.undo()
+    monkeypatch.setattr(flow, "sample_rays", spy)
     assert main(["-q", "fit-sequence", str(depth), "-o", str(runs["resumed"]), *args, "--resume"]) == 0
+    assert len(calls) == 3 + 3 + 2, len(calls)    # the stopped run's 3 (frame 2's coarse stage came first), then 2
+    np.testing.assert_array_equal(calls[-1][2], fitted[0])
     for t in range(3):
         V, _ = io.read_mesh(runs["resumed"] / "control" / f"{t:04d}.ply")
         V_ref, _ = io.read_mesh(runs["whole"] / "control" / f"{t:04d}.ply")
