@@ -428,10 +428,10 @@ class SequenceOptions:
                                 help="with the flow's rays (--track-flow): hold the control points that the rays "
                                      "pinned K times as hard along the surface as --tangential (default "
                                      "%(default)s; 1: the same)")
-    track_key: int = option(0, rule=at_least(0), metavar="K",
+    track_key: int = option(4, rule=at_least(0), metavar="K",
                             help="with the flow's rays (--track-flow): also the rays of the optical flow from the "
                                  "photos of K frames before, where that frame's fit saw the material (default "
-                                 "%(default)s: off)")
+                                 "%(default)s; 0 or 1: off)")
 
     def __post_init__(self):
         check_fields(self)

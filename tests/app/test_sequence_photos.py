@@ -121,6 +121,7 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
         assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
     options = json.loads((out / "sequence.json").read_text())["options"]
     assert options["track"] == 4 and options["track_flow"] == 1.0 and options["pinned_hold"] == 10.0
+    assert options["track_key"] == 4
 
 
 @pytest.mark.slow
