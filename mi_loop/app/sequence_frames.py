@@ -199,7 +199,9 @@ class FrameFitter:
         return None
 
     def _rays(self, t: int, images):
-        """The coarse stage's rays (:func:`~mi_loop.fitting.flow.sample_rays`), or None."""
+        """The coarse stage's rays at frame ``t`` (:func:`~mi_loop.fitting.flow.sample_rays`), or None: the previous
+        fit's, and from frame ``--track-key`` on also the fit's of that many frames before, each carried by the flow
+        from its frame's photos to ``t``'s."""
         from mi_loop.fitting.flow import sample_rays
 
         if not self.rays or images is None or images.flow is None:
