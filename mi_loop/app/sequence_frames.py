@@ -179,9 +179,7 @@ class FrameFitter:
             flow = None
             if (o.flow > 0 or self.rays) and t > 0:    # the previous frame's photos, camera by camera
                 if self.views is None:               # after a resume
-                    from mi_loop.io.capture import read_capture
-
-                    self.views = list(read_capture(run.sources.captures[t - 1]).views)
+                    self.views = self._photos(t - 1)
                 if len(self.views) == len(views):
                     flow = (self.views, views)
             self.views = views
@@ -198,6 +196,12 @@ class FrameFitter:
             return self.rig.images(run.x, run.F, (run.norm.forward(frame.mesh[0]), frame.mesh[1]), t)
         return None
 
+    def _photos(self, t: int) -> list:
+        """Frame ``t``'s photos as read back from its capture, for a flow that starts there (already checked)."""
+        from mi_loop.io.capture import read_capture
+
+        return list(read_capture(self.run.sources.captures[t]).views)
+
     def _rays(self, t: int, images):
         """The coarse stage's rays at frame ``t`` (:func:`~mi_loop.fitting.flow.sample_rays`), or None: the previous
         fit's, and from frame ``--track-key`` on also the fit's of that many frames before, each carried by the flow
@@ -211,9 +215,7 @@ class FrameFitter:
         rays = sample_rays(*images.flow, run.x, run.F, self.matrices, to_world)
         key = run.options.track_key
         if key > 1 and t >= key:             # and the flow from frame t-key's photos, that frame's fit carried
-            from mi_loop.io.capture import read_capture
-
-            views = list(read_capture(run.sources.captures[t - key]).views)
+            views = self._photos(t - key)    # read again, not kept: K frames of photos would bound no memory
             if len(views) == len(images.flow[1]):
                 x = runs.read_state(runs.state_path(run.out, t - key)).x
                 more = sample_rays(views, images.flow[1], x, run.F, self.matrices, to_world)
