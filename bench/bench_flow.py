@@ -12,8 +12,8 @@ for:
 - ``optical_flow`` (what ``fit-sequence`` uses: DIS, medium preset, refined to full resolution);
 - DIS's medium preset alone (finest scale 1, the flow before 2026-12-07).
 
-``--gap K`` measures the flow from frame ``t-K`` to ``t`` instead, what ``fit-sequence
---track-key K`` adds to the coarse stage.
+``--gap K`` measures the flow from frame ``t-K`` to ``t`` instead, one of those ``fit-sequence
+--track-key`` adds to the coarse stage (gaps 2, 4 and 8 by default).
 
 Usage::
 
@@ -100,7 +100,7 @@ def main() -> None:
     ap.add_argument("--consistency", type=float, default=1.0,
                     help="largest disagreement of the forward and backward flows kept, pixels (fit-sequence: 1)")
     ap.add_argument("--gap", type=int, default=1,
-                    help="flow from frame t-GAP to t (fit-sequence: 1, and K with --track-key K)")
+                    help="flow from frame t-GAP to t (fit-sequence: 1, and 2, 4, 8 with --track-key 8)")
     args = ap.parse_args()
     start, stop = (int(v) for v in args.frames.split(":"))
     print(f"frames {start}-{stop - 1}, {os.cpu_count()} cores; pixels\n")

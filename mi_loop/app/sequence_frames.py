@@ -20,7 +20,7 @@ from mi_loop import io
 from mi_loop.app.sequence_sources import Sources, captures_phrase, read_views
 from mi_loop.io import runs
 
-__all__ = ["FrameFitter", "SequenceRun", "fit_frames", "stage_note"]
+__all__ = ["FrameFitter", "SequenceRun", "fit_frames", "key_gaps", "stage_note"]
 
 
 @dataclass(eq=False)
@@ -204,8 +204,8 @@ class FrameFitter:
 
     def _rays(self, t: int, images):
         """The coarse stage's rays at frame ``t`` (:func:`~mi_loop.fitting.flow.sample_rays`), or None: the previous
-        fit's, and from frame ``--track-key`` on also the fit's of that many frames before, each carried by the flow
-        from its frame's photos to ``t``'s."""
+        fit's, and the fits' of the frames :func:`key_gaps` before ``t`` (those at frame 0 or later), each carried by
+        the flow from its frame's photos to ``t``'s."""
         from mi_loop.fitting.flow import sample_rays
 
         if not self.rays or images is None or images.flow is None:
@@ -213,11 +213,12 @@ class FrameFitter:
         run = self.run
         to_world = (run.norm.scale, run.norm.centre)
         rays = sample_rays(*images.flow, run.x, run.F, self.matrices, to_world)
-        key = run.options.track_key
-        if key > 1 and t >= key:             # and the flow from frame t-key's photos, that frame's fit carried
-            views = self._photos(t - key)    # read again, not kept: K frames of photos would bound no memory
+        for gap in key_gaps(run.options.track_key):
+            if gap > t:                      # and the flow from frame t-gap's photos, that frame's fit carried
+                break
+            views = self._photos(t - gap)    # read again, not kept: K frames of photos would bound no memory
             if len(views) == len(images.flow[1]):
-                x = runs.read_state(runs.state_path(run.out, t - key)).x
+                x = runs.read_state(runs.state_path(run.out, t - gap)).x
                 more = sample_rays(views, images.flow[1], x, run.F, self.matrices, to_world)
                 rays = tuple(np.concatenate([a, b]) for a, b in zip(rays, more))
         return rays
@@ -344,7 +345,11 @@ def stage_note(options, photos: bool) -> str:
     >>> from mi_loop.fitting.options import SequenceOptions
     >>> stage_note(SequenceOptions(track=10), photos=True)  # doctest: +NORMALIZE_WHITESPACE
     "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
-    (--track-flow 1) and on those from 4 frames before (--track-key 4), what they pinned held 10 times
+    (--track-flow 1) and on those from 2, 4 and 8 frames before (--track-key 8), what they pinned held
+    10 times as hard (--pinned-hold 10)"
+    >>> stage_note(SequenceOptions(track=10, track_key=2), photos=True)  # doctest: +NORMALIZE_WHITESPACE
+    "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
+    (--track-flow 1) and on those from 2 frames before (--track-key 2), what they pinned held 10 times
     as hard (--pinned-hold 10)"
     >>> stage_note(SequenceOptions(track=10, track_key=0), photos=True)  # doctest: +NORMALIZE_WHITESPACE
     "; each frame first carried by a deformation graph (--track 10), on the optical flow's rays
@@ -359,12 +364,36 @@ def stage_note(options, photos: bool) -> str:
     note = f"; each frame first carried by a deformation graph (--track {options.track})"
     if not _rays_on(options, photos):
         return note
-    key = options.track_key
+    gaps = [str(gap) for gap in key_gaps(options.track_key)]
     note += f", on the optical flow's rays (--track-flow {options.track_flow:g})"
-    if key > 1:
-        note += f" and on those from {key} frames before (--track-key {key})"
+    if gaps:
+        before = " and ".join([", ".join(gaps[:-1]), gaps[-1]] if len(gaps) > 1 else gaps)
+        note += f" and on those from {before} frames before (--track-key {options.track_key})"
     hold = options.pinned_hold
     return note + f", what they pinned held {hold:g} times as hard (--pinned-hold {hold:g})"
+
+
+def key_gaps(key: int) -> list:
+    """How many frames before the flow's key rays start (``--track-key K``): every power of two below ``K``, then ``K``.
+
+    Each gap's flow carries its own error once, not chained through every frame in between; gaps that
+    double keep the oldest key within ``K`` frames at ``log2 K`` flows.
+
+    Parameters
+    ----------
+    key : int
+        The largest gap; 0 or 1: none.
+
+    Examples
+    --------
+    >>> key_gaps(8), key_gaps(6), key_gaps(2), key_gaps(1)
+    ([2, 4, 8], [2, 4, 6], [2], [])
+    """
+    gaps, gap = [], 2
+    while gap < key:
+        gaps.append(gap)
+        gap *= 2
+    return gaps + [key] if key > 1 else []
 
 
 def _rays_on(options, photos: bool) -> bool:

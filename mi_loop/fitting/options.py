@@ -309,9 +309,9 @@ class SequenceOptions:
         pinned, relative to one they did not (:func:`~mi_loop.fitting.track.pinned_hold`): what the
         photos pinned is held harder than what the graph alone carried; 1: the same.
     track_key : int
-        With the flow's rays: also the rays of the flow from the photos of ``K`` frames before
-        (that frame's fit carried to this one's photos), so that the flow's error is not chained
-        through every frame; 0 or 1: off.
+        With the flow's rays: also the rays of the flows from the photos of 2, 4, ... and ``K`` frames
+        before (:func:`~mi_loop.app.sequence_frames.key_gaps`; each frame's fit carried to this one's
+        photos), so that the flow's error is not chained through every frame; 0 or 1: off.
     """
 
     alpha: float = option(0.01, rule=WEIGHT, help="ARAP weight relative to the previous frame (default %(default)s)")
@@ -428,10 +428,10 @@ class SequenceOptions:
                                 help="with the flow's rays (--track-flow): hold the control points that the rays "
                                      "pinned K times as hard along the surface as --tangential (default "
                                      "%(default)s; 1: the same)")
-    track_key: int = option(4, rule=at_least(0), metavar="K",
+    track_key: int = option(8, rule=at_least(0), metavar="K",
                             help="with the flow's rays (--track-flow): also the rays of the optical flow from the "
-                                 "photos of K frames before, where that frame's fit saw the material (default "
-                                 "%(default)s; 0 or 1: off)")
+                                 "photos of 2, 4, ... and K frames before (the powers of two below K, then K), "
+                                 "where those frames' fits saw the material (default %(default)s; 0 or 1: off)")
 
     def __post_init__(self):
         check_fields(self)

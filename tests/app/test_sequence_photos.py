@@ -121,7 +121,7 @@ def test_the_coarse_stage_with_photos_leaves_the_unseen_side_to_them(capture, tm
         assert back_error(out, t) < 1.5 * back_error(untracked, t) + 0.002, (t, back_error(untracked, t))
     options = json.loads((out / "sequence.json").read_text())["options"]
     assert options["track"] == 4 and options["track_flow"] == 1.0 and options["pinned_hold"] == 10.0
-    assert options["track_key"] == 4
+    assert options["track_key"] == 8
 
 
 @pytest.mark.slow
@@ -165,6 +165,37 @@ def test_a_resumed_photo_run_with_the_flows_rays_equals_the_uninterrupted_one(ca
         V, _ = io.read_mesh(runs["resumed"] / "control" / f"{t:04d}.ply")
         V_ref, _ = io.read_mesh(runs["whole"] / "control" / f"{t:04d}.ply")
         np.testing.assert_array_equal(V, V_ref, err_msg=f"frame {t}")
+
+
+@pytest.mark.slow
+def test_the_key_rays_start_from_the_fits_2_and_4_frames_before(capture, tmp_path, monkeypatch):
+    """``--track-key 4``: from frame 2 on the coarse stage also holds the fit of 2 frames before on the rays of the
+    flow from that frame's photos, and from frame 4 on the fit of 4 frames before too (the powers of two below K,
+    then K); each flow ends at the frame's own photos. Five frames: the sphere grows and shrinks again."""
+    from mi_loop.fitting import flow
+    from mi_loop.io import runs as run_files
+
+    depth, images, _ = capture
+    radius = [0, 1, 2, 1, 0]                                      # frame t shows the sphere of radius RADII[radius[t]]
+    calls = []
+    real = flow.sample_rays
+
+    def spy(previous, current, x, *args, **kwargs):
+        calls.append((current[0].rgb, np.array(x)))
+        return real(previous, current, x, *args, **kwargs)
+    monkeypatch.setattr(flow, "sample_rays", spy)
+    out = tmp_path / "out"
+    frames = [str(depth / f"{r:04d}.xyz") for r in radius]
+    captures = [str(images / f"{r:04d}" / "transforms.json") for r in radius]
+    assert main(["-q", "fit-sequence", *frames, "-o", str(out), "--images", *captures, "--track", "4",
+                 "--track-key", "4", "--deterministic", *FAST]) == 0
+    photo = [io.read_capture(images / f"{r:04d}" / "transforms.json").views[0].rgb for r in radius]
+    fitted = [run_files.read_state(run_files.state_path(out, t)).x for t in range(5)]
+    pairs = [(0, 1), (1, 2), (0, 2), (2, 3), (1, 3), (3, 4), (2, 4), (0, 4)]
+    assert len(calls) == len(pairs), len(calls)
+    for (current, x), (t0, t) in zip(calls, pairs):
+        np.testing.assert_array_equal(current, photo[t], err_msg=f"{t0} to {t}")
+        np.testing.assert_array_equal(x, fitted[t0], err_msg=f"{t0} to {t}")
 
 
 def test_a_resume_must_be_given_the_photos_of_the_run_and_no_others(capture, tmp_path, monkeypatch, capsys):
