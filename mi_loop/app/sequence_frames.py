@@ -139,7 +139,8 @@ class FrameFitter:
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
         cover = o.cover_weight(mesh_frame=True), o.cover_weight(mesh_frame=False, photos=photos and o.image)
         terms = (["IMLS"] + _weighted("coverage", *cover)) if o.geometric else []
-        terms += ["ARAP"] + (["ARAP to the template"] if o.alpha_rest > 0 else [])
+        rest = o.rest_weight(photos=photos and o.image)
+        terms += ["ARAP"] + ([f"{rest:g} x ARAP to the template"] if rest > 0 else [])
         terms += _weighted("fold barrier", o.fold_weight(mesh_frame=True), o.fold_weight(mesh_frame=False))
         if o.image and photos and o.flow > 0:
             terms += ["optical flow"]

@@ -377,7 +377,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     progress : callable, optional
         Called as ``progress(done, total)`` after every iteration.
     rest : (n, 3) float64 NumPy array, optional
-        The template: second ARAP rest shape, weight ``options.alpha_rest``.
+        The template: second ARAP rest shape, weight ``options.rest_weight(...)``.
     vertex_op : LimitOperator, optional
         One sample per control vertex (its limit point), for the data support
         of the image weights; without it the control points stand in.
@@ -444,8 +444,9 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     # rest = the previous frame's fit; Adam's first half is stiff (Gauss-Newton needs no such start)
     stiff = (options.stiff_factor, n_it // 2) if options.stiff_factor > 1 and not gauss_newton else None
     parts = [terms.Rigidity(ARAP(x0 if previous is None else previous, F), options.alpha / n, stiff=stiff)]
-    if rest is not None and options.alpha_rest > 0:
-        parts.append(terms.Rigidity(ARAP(rest, F), options.alpha_rest / n, name="arap_rest"))
+    alpha_rest = options.rest_weight(photos=images is not None and images.photos)
+    if rest is not None and alpha_rest > 0:
+        parts.append(terms.Rigidity(ARAP(rest, F), alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None
     dr.eval(normals0)
     if held is not None and options.tangential > 0 and vertex_op is not None:

@@ -481,7 +481,7 @@ def test_point_cloud_frames_are_fitted_without_the_image_term(inputs, tmp_path, 
             "--iterations", "60", "--points", "2000"])
     err = capsys.readouterr().err
     assert "point-cloud frames without --images: no surface to render, so the image term is off" in err
-    assert ("terms: IMLS + coverage (3 x on mesh frames, 0.3 x on point clouds) + ARAP + ARAP to the template + "
+    assert ("terms: IMLS + coverage (3 x on mesh frames, 0.3 x on point clouds) + ARAP + 0.01 x ARAP to the template + "
             "fold barrier (0.01 x on mesh frames, 1 x on point clouds)\n") in err       # the defaults by kind
     rows = read_rows(out)
     assert [int(r["frame"]) for r in rows] == [0, 1]
