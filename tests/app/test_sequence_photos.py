@@ -198,6 +198,31 @@ def test_the_key_rays_start_from_the_fits_2_and_4_frames_before(capture, tmp_pat
         np.testing.assert_array_equal(x, fitted[t0], err_msg=f"{t0} to {t}")
 
 
+@pytest.mark.slow
+def test_photos_hold_the_template_ten_times_as_hard_unless_told(capture, tmp_path, monkeypatch, capsys):
+    """Without ``--alpha-rest`` a run fitted to photos holds the control mesh to the template with ARAP weight 0.1
+    (0.01 without photos): the weight that reaches the frame's solve and the one the terms line gives."""
+    from mi_loop.fitting import terms
+
+    depth, images, _ = capture
+    given = []
+    real = terms.Rigidity
+
+    def spy(arap, weight, *args, name="arap", **kwargs):
+        given.append((name, weight))
+        return real(arap, weight, *args, name=name, **kwargs)
+    monkeypatch.setattr(terms, "Rigidity", spy)
+    for extra, weight in (([], 0.1), (["--alpha-rest", "0.5"], 0.5)):
+        given.clear()
+        out = tmp_path / str(weight)
+        assert main(["fit-sequence", str(depth), "--images", str(images), "-o", str(out), "--frames", "0:1",
+                     *extra, *FAST]) == 0
+        n = len(io.read_mesh(out / "control" / "0000.ply")[0])
+        rest = [w * n for name, w in given if name == "arap_rest"]
+        assert rest and np.allclose(rest, weight), (given, n)
+        assert f" + ARAP + {weight:g} x ARAP to the template + " in capsys.readouterr().err
+
+
 def test_a_resume_must_be_given_the_photos_of_the_run_and_no_others(capture, tmp_path, monkeypatch, capsys):
     """Without ``--images`` a run fitted to photos would go on without them (and one fitted without photos would
     take them): both are refused, and the finished frame stays."""
