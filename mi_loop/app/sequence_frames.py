@@ -137,9 +137,10 @@ class FrameFitter:
             from mi_loop.fitting.sequence import Rig
 
             self.rig = Rig(o, tuple(np.asarray(c) for c in run.camera_box))
-        cover = o.cover_weight(mesh_frame=True), o.cover_weight(mesh_frame=False, photos=photos and o.image)
+        fitted = photos and o.image          # the image term fits photos
+        cover = o.cover_weight(mesh_frame=True), o.cover_weight(mesh_frame=False, photos=fitted)
         terms = (["IMLS"] + _weighted("coverage", *cover)) if o.geometric else []
-        rest = o.rest_weight(photos=photos and o.image)
+        rest = o.rest_weight(photos=fitted)
         terms += ["ARAP"] + ([f"{rest:g} x ARAP to the template"] if rest > 0 else [])
         terms += _weighted("fold barrier", o.fold_weight(mesh_frame=True), o.fold_weight(mesh_frame=False))
         if o.image and photos and o.flow > 0:
@@ -368,7 +369,7 @@ def stage_note(options, photos: bool) -> str:
     gaps = [str(gap) for gap in key_gaps(options.track_key)]
     note += f", on the optical flow's rays (--track-flow {options.track_flow:g})"
     if gaps:
-        before = " and ".join([", ".join(gaps[:-1]), gaps[-1]] if len(gaps) > 1 else gaps)
+        before = f"{', '.join(gaps[:-1])} and {gaps[-1]}" if len(gaps) > 1 else gaps[0]
         note += f" and on those from {before} frames before (--track-key {options.track_key})"
     hold = options.pinned_hold
     return note + f", what they pinned held {hold:g} times as hard (--pinned-hold {hold:g})"

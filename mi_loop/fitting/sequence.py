@@ -444,7 +444,8 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     # rest = the previous frame's fit; Adam's first half is stiff (Gauss-Newton needs no such start)
     stiff = (options.stiff_factor, n_it // 2) if options.stiff_factor > 1 and not gauss_newton else None
     parts = [terms.Rigidity(ARAP(x0 if previous is None else previous, F), options.alpha / n, stiff=stiff)]
-    alpha_rest = options.rest_weight(photos=images is not None and images.photos)
+    photos = images is not None and images.photos
+    alpha_rest = options.rest_weight(photos=photos)
     if rest is not None and alpha_rest > 0:
         parts.append(terms.Rigidity(ARAP(rest, F), alpha_rest / n, name="arap_rest"))
     normals0 = op.normals(x) if op.derivatives else None
@@ -463,7 +464,7 @@ def fit_frame(x0, F, points, normals, op, images: FrameImages | None, options: S
     if options.geometric:
         imls = IMLS(points, normals, max_growths=options.reach)
         parts.append(terms.Distance(imls, op, facing=op.derivatives))
-        cover = options.cover_weight(mesh_frame=complete, photos=images is not None and images.photos)
+        cover = options.cover_weight(mesh_frame=complete, photos=photos)
         if cover > 0:
             parts.append(terms.Coverage(Coverage(points, normals, tree=imls.tree), op, cover,
                                         facing=op.derivatives))
