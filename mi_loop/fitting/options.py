@@ -72,10 +72,11 @@ FOLD = 0.01           # weight of the fold barrier: the static fit's, and fit-se
 POINTS_FOLD = 1.0
 ALPHA_REST = 0.01     # fit-sequence's ARAP weight relative to the template
 #: fit-sequence's ARAP weight relative to the template on frames whose image term fits photos. Partial depth never
-#: sees one side; only the photos do, and the template holds it: on ``spot_fine`` (``--track 10``, the key rays; two
-#: runs each) the last frame's drift fell from 0.49-0.52 % to 0.38-0.40 %, the largest flipped area from 0.52-0.56 % to
-#: 0.009-0.027 %, the last mean from 0.0021-0.0022 to 0.0016 against :data:`ALPHA_REST`.
-PHOTOS_ALPHA_REST = 0.1
+#: sees one side; only the photos do, and the template holds it. On ``spot_fine`` (``--track 10``, the key rays; two
+#: runs each) 0.1 took the last frame's drift from 0.49-0.52 % to 0.38-0.40 %, the largest flipped area from 0.52-0.56 %
+#: to 0.009-0.027 %, the last mean from 0.0021-0.0022 to 0.0016 against :data:`ALPHA_REST`; 0.3 lowered the drift a
+#: further 7 % frame by frame on spot_fine and the smooth spot and the fox's flipped area by 38 % (BENCHMARKS.md).
+PHOTOS_ALPHA_REST = 0.3
 #: ``--holdout K``: 0 (off) or every K-th photo, K >= 2 (K = 1 would leave nothing to fit).
 HOLDOUT = Rule(lambda v: SEED.ok(v) and v != 1, "0 (off) or an integer >= 2", int)
 
@@ -492,7 +493,7 @@ class SequenceOptions:
         Examples
         --------
         >>> SequenceOptions().rest_weight(photos=True), SequenceOptions().rest_weight(photos=False)
-        (0.1, 0.01)
+        (0.3, 0.01)
         >>> SequenceOptions(alpha_rest=0).rest_weight(photos=True)
         0
         """

@@ -215,7 +215,7 @@ BAD_VALUES = {
     ("a finite number >= 0 (or None: 3 on mesh frames and with --images, "
      "0.3 on point clouds without)"): [("-0.5", "-0.5"), ("inf", "inf")],
     "a finite number >= 0 (or None: 0.01 on mesh frames, 1 on point clouds)": [("-1", "-1.0"), ("nan", "nan")],
-    "a finite number >= 0 (or None: 0.01, or 0.1 with --images)": [("-0.1", "-0.1"), ("inf", "inf")],
+    "a finite number >= 0 (or None: 0.01, or 0.3 with --images)": [("-0.1", "-0.1"), ("inf", "inf")],
     "an integer >= 0": [("-1", "-1")],
     "an integer >= 1": [("0", "0"), ("-3", "-3")],
     "an integer >= 4": [("3", "3")],
