@@ -180,23 +180,6 @@ class Camera:
         return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
 
 
-def _box_average(a: np.ndarray, m: int, axis: int) -> np.ndarray:
-    """Average ``a`` over ``m`` equal intervals along ``axis``, with exact fractional-pixel weights."""
-    n = a.shape[axis]
-    if m == n:
-        return a
-    a = np.moveaxis(a, axis, 0).astype(np.float64)
-    if n % m == 0:
-        out = a.reshape(m, n // m, *a.shape[1:]).mean(axis=1)
-    else:                                   # integral of the piecewise-constant image at m + 1 cuts
-        C = np.concatenate([np.zeros((1, *a.shape[1:])), np.cumsum(a, axis=0)])
-        t = np.arange(m + 1) * (n / m)
-        k = np.minimum(np.floor(t).astype(np.int64), n - 1)
-        S = C[k] + (t - k).reshape(-1, *[1] * (a.ndim - 1)) * a[k]
-        out = np.diff(S, axis=0) * (m / n)
-    return np.moveaxis(out, 0, axis)
-
-
 @dataclass(frozen=True, eq=False)
 class View:
     """One calibrated image: camera, linear RGB, foreground mask, and which pixels the photo saw.
@@ -262,12 +245,16 @@ class View:
             object.__setattr__(self, "valid", valid)
 
     def resized(self, factor: float) -> View:
-        """Return the view downsampled by ``factor`` (area-averaged rgb and mask, :meth:`Camera.scaled`).
+        """Return the view downsampled by ``factor`` (area-averaged rgb and mask, :func:`~mi_loop.io.undistort.scale_camera`).
 
-        Every new pixel is the mean of the old image over its footprint
-        (``old / new`` pixels on each axis, fractional pixels weighted by their
-        area); with ``valid``, the mean over the seen part (weighted by ``valid``),
-        and ``valid`` the mean of the old.
+        Every pixel coordinate scales by exactly ``factor`` on both axes, so square
+        pixels stay square (Mitsuba's sensor needs them); the size is
+        ``floor(width * factor) x floor(height * factor)``, the last part-pixel
+        cropped. Every new pixel is the mean of the old image over its footprint
+        (``1 / factor`` old pixels on each axis, fractional pixels weighted by
+        their area: :func:`~mi_loop.io.undistort.area_resize`); with ``valid``,
+        the mean over the seen part (weighted by ``valid``), and ``valid`` the
+        mean of the old.
 
         Parameters
         ----------
@@ -278,11 +265,17 @@ class View:
         -------
         View
         """
-        camera = self.camera.scaled(check_factor(factor, "View.resized", downsampling=True))
-        if (camera.width, camera.height) == (self.camera.width, self.camera.height):
+        from mi_loop.io.undistort import area_resize, scale_camera      # undistort builds on this module
+
+        factor = check_factor(factor, "View.resized", downsampling=True)
+        if factor == 1:
             return self
+        camera = scale_camera(self.camera, factor)
+        size = (camera.height, camera.width)
+        extent = (min(self.camera.height, camera.height / factor), min(self.camera.width, camera.width / factor))
+
         def resample(a):
-            return _box_average(_box_average(a, camera.height, 0), camera.width, 1)
+            return area_resize(np.asarray(a, dtype=np.float32), size, extent)
         if self.valid is None:
             return View(camera, resample(self.rgb), np.clip(resample(self.mask), 0, 1), self.name)
         valid = resample(self.valid)

@@ -16,7 +16,7 @@ from PIL import Image
 
 from mi_loop.io.capture import Camera, View, read_capture, write_capture
 from mi_loop.io.srgb import linear_to_srgb, srgb_to_linear
-from mi_loop.render.cameras import fibonacci_cameras, look_at, project
+from mi_loop.render.cameras import fibonacci_cameras, look_at, project, sensor_dict
 
 from helpers import exactly
 
@@ -280,7 +280,25 @@ def test_resized_by_a_fraction_weights_partial_pixels():
     np.testing.assert_allclose(small.rgb[0, :, 0], thirds.reshape(24, 8).mean(axis=1), rtol=1e-6)
     np.testing.assert_allclose(small.mask, 1.0, rtol=1e-6)
     assert (small.camera.fx, small.camera.cx) == (15.0, 12.0)
-    assert small.camera.fy == pytest.approx(40 * 3 / 9) and small.camera.cy == pytest.approx(1.5)
+    assert (small.camera.fy, small.camera.cy) == (15.0, 4.5 * 0.375)     # 3 rows of 8/3: the last old row cropped
+
+
+def test_resized_keeps_pixels_square_where_the_size_does_not_divide():
+    """601 rows halve to 300 rows of exactly 2 (the last old row cropped), not to 301 rows of 601/301: Mitsuba's
+    sensor refuses fx != fy, which is what a DTU capture read at 800 x 601 met in fit-images' coarse stages."""
+    rng = np.random.default_rng(5)
+    camera = Camera(np.array(POSE), 723.0, 723.0, 400.5, 300.25, 800, 601)
+    view = View(camera, rng.random((601, 800, 3)), rng.random((601, 800)), "v")
+    for factor in (0.5, 0.25):
+        small = view.resized(factor)
+        k = round(1 / factor)
+        h, w = 601 // k, 800 // k
+        assert (small.camera.width, small.camera.height) == (w, h)
+        assert small.camera.fx == small.camera.fy == 723.0 * factor
+        np.testing.assert_allclose(small.rgb, view.rgb[:h * k].reshape(h, k, w, k, 3).mean(axis=(1, 3)), rtol=1e-5)
+        points = rng.normal(size=(10, 3)) * 0.5
+        np.testing.assert_allclose(project(small.camera, points), factor * project(camera, points), rtol=1e-12)
+        sensor_dict(small.camera)                                          # square pixels: accepted
 
 
 def test_read_capture_downsamples_as_it_reads(tmp_path):
