@@ -245,7 +245,8 @@ class View:
             object.__setattr__(self, "valid", valid)
 
     def resized(self, factor: float) -> View:
-        """Return the view downsampled by ``factor`` (area-averaged rgb and mask, :func:`~mi_loop.io.undistort.scale_camera`).
+        """Return the view downsampled by ``factor``: area-averaged rgb and mask, the camera by
+        :func:`~mi_loop.io.undistort.scale_camera`.
 
         Every pixel coordinate scales by exactly ``factor`` on both axes, so square
         pixels stay square (Mitsuba's sensor needs them); the size is
