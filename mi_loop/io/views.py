@@ -266,7 +266,7 @@ class View:
         -------
         View
         """
-        from mi_loop.io.undistort import area_resize, scale_camera      # undistort builds on this module
+        from mi_loop.io.undistort import area_resize, scale_camera  # undistort builds on this module
 
         factor = check_factor(factor, "View.resized", downsampling=True)
         if factor == 1:
