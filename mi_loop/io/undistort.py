@@ -3,8 +3,9 @@
 - :class:`Lens`: OpenCV's lens models, radial-tangential (``cv2``'s ``k1 k2 p1
   p2 k3 k4 k5 k6``) and the equidistant fisheye (``cv2.fisheye``'s ``k1 k2 k3 k4``);
 - :func:`ideal_camera`: the pinhole camera with square pixels that sees what
-  a camera sees through its lens; :func:`scale_camera`: a camera for its image
-  scaled by an exact factor;
+  a camera sees through its lens; :func:`scale_camera` (a camera for its image
+  scaled by an exact factor) and :func:`area_resize` live in :mod:`mi_loop.io.views`,
+  which :meth:`~mi_loop.io.views.View.resized` shares, and are re-exported here;
 - :func:`undistort`: an image resampled from a camera with a lens to a pinhole
   camera, with the share of each pixel that the photo saw;
 - :func:`area_resize`: an image reduced by area averaging.
@@ -21,10 +22,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 from mi_loop.errors import fail
-from mi_loop.io.views import Camera, check_factor
+from mi_loop.io.views import Camera, area_resize, scale_camera
 
 __all__ = ["LENS_MODELS", "Lens", "area_resize", "ideal_camera", "scale_camera", "undistort"]
 
@@ -166,94 +166,6 @@ def ideal_camera(camera: Camera, lens: Lens) -> Camera:
     w = max(1, math.floor((right - left) * f + 1e-6))
     h = max(1, math.floor((bottom - top) * f + 1e-6))
     return Camera(camera.c2w, f, f, -left * f, -top * f, w, h)
-
-
-def scale_camera(camera: Camera, scale: float) -> Camera:
-    """Return ``camera`` for its image scaled by exactly ``scale``: every pixel coordinate times ``scale``.
-
-    Parameters
-    ----------
-    camera : Camera
-    scale : float
-        > 0.
-
-    Returns
-    -------
-    Camera
-        ``fx fy cx cy`` times ``scale`` (square pixels stay square); size
-        ``floor(width * scale) x floor(height * scale)`` (at least 1), the last
-        part-pixel cropped. :meth:`Camera.scaled` rounds the size instead and
-        scales each axis by its own ratio.
-
-    Raises
-    ------
-    ValueError
-        A scale that is not finite and > 0.
-
-    Examples
-    --------
-    >>> cam = scale_camera(Camera(np.eye(4), 100.0, 100.0, 50.0, 37.5, 100, 75), 0.1)
-    >>> cam.fx, cam.cy, cam.width, cam.height
-    (10.0, 3.75, 10, 7)
-    """
-    scale = check_factor(scale, "scale_camera")
-    w, h = (max(1, math.floor(n * scale + 1e-6)) for n in (camera.width, camera.height))
-    return Camera(camera.c2w, camera.fx * scale, camera.fy * scale, camera.cx * scale, camera.cy * scale, w, h)
-
-
-def _area_matrix(n: int, m: int, extent: float) -> scipy.sparse.csr_matrix:
-    """``(m, n)`` weights averaging ``m`` equal intervals of ``[0, extent]`` over unit pixels ``[i, i + 1]``."""
-    a = np.arange(m)[:, None] * (extent / m)                  # (m, 1) interval starts
-    b = np.arange(1, m + 1)[:, None] * (extent / m)
-    i = np.floor(a).astype(np.int64) + np.arange(math.ceil(extent / m) + 2)[None, :]
-    overlap = np.minimum(b, i + 1) - np.maximum(a, i)
-    keep = (overlap > 0) & (i < n)
-    rows = np.broadcast_to(np.arange(m)[:, None], i.shape)[keep]
-    weights = (overlap / (b - a))[keep].astype(np.float32)
-    return scipy.sparse.csr_matrix((weights, (rows, i[keep])), shape=(m, n))
-
-
-def area_resize(image: np.ndarray, size: tuple[int, int], extent: tuple[float, float] | None = None) -> np.ndarray:
-    """Reduce an image by area averaging: each new pixel is the mean of the old over its footprint.
-
-    Parameters
-    ----------
-    image : (h, w) or (h, w, c) float32 NumPy array
-    size : (int, int)
-        New ``(height, width)``, at most the old.
-    extent : (float, float), optional
-        The part ``[0, extent_y] x [0, extent_x]`` of the old image (in old
-        pixels, at most ``(h, w)``) that the new one covers; default all of it.
-        New pixel ``(i, j)`` covers old ``[j ex / W, (j + 1) ex / W] x [...]``,
-        fractional pixels weighted by their area.
-
-    Returns
-    -------
-    (H, W) or (H, W, c) float32 NumPy array
-
-    Raises
-    ------
-    ValueError
-        A size below 1, an extent outside the image.
-
-    Examples
-    --------
-    >>> area_resize(np.arange(6, dtype=np.float32).reshape(1, 6), (1, 2)).tolist()
-    [[1.0, 4.0]]
-    """
-    h, w = image.shape[:2]
-    H, W = size
-    ey, ex = (h, w) if extent is None else extent
-    if not (H >= 1 and W >= 1 and 0 < ey <= h and 0 < ex <= w):
-        fail("area_resize", f"a size >= 1 and an extent in (0, {h}] x (0, {w}]",
-             f"size {tuple(size)}, extent {(ey, ex)}")
-    if (H, W, ey, ex) == (h, w, h, w):
-        return image
-    flat = image.reshape(h, -1)
-    out = _area_matrix(h, H, ey) @ flat                                         # (H, w * c)
-    out = out.reshape(H, w, -1).transpose(1, 0, 2).reshape(w, -1)
-    out = (_area_matrix(w, W, ex) @ out).reshape(W, H, -1).transpose(1, 0, 2)   # (H, W, c)
-    return np.ascontiguousarray(out.reshape((H, W) + image.shape[2:]), dtype=np.float32)
 
 
 def undistort(image: np.ndarray, camera: Camera, lens: Lens, target: Camera) -> tuple[np.ndarray, np.ndarray]:

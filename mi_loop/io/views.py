@@ -12,10 +12,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse
 
 from mi_loop.errors import fail
 
-__all__ = ["Camera", "Capture", "View", "check_factor", "pose_problem"]
+__all__ = ["Camera", "Capture", "View", "area_resize", "check_factor", "pose_problem", "scale_camera"]
 
 
 def pose_problem(c2w):
@@ -180,6 +181,94 @@ class Camera:
         return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
 
 
+def scale_camera(camera: Camera, scale: float) -> Camera:
+    """Return ``camera`` for its image scaled by exactly ``scale``: every pixel coordinate times ``scale``.
+
+    Parameters
+    ----------
+    camera : Camera
+    scale : float
+        > 0.
+
+    Returns
+    -------
+    Camera
+        ``fx fy cx cy`` times ``scale`` (square pixels stay square); size
+        ``floor(width * scale) x floor(height * scale)`` (at least 1), the last
+        part-pixel cropped. :meth:`Camera.scaled` rounds the size instead and
+        scales each axis by its own ratio.
+
+    Raises
+    ------
+    ValueError
+        A scale that is not finite and > 0.
+
+    Examples
+    --------
+    >>> cam = scale_camera(Camera(np.eye(4), 100.0, 100.0, 50.0, 37.5, 100, 75), 0.1)
+    >>> cam.fx, cam.cy, cam.width, cam.height
+    (10.0, 3.75, 10, 7)
+    """
+    scale = check_factor(scale, "scale_camera")
+    w, h = (max(1, math.floor(n * scale + 1e-6)) for n in (camera.width, camera.height))
+    return Camera(camera.c2w, camera.fx * scale, camera.fy * scale, camera.cx * scale, camera.cy * scale, w, h)
+
+
+def _area_matrix(n: int, m: int, extent: float) -> scipy.sparse.csr_matrix:
+    """``(m, n)`` weights averaging ``m`` equal intervals of ``[0, extent]`` over unit pixels ``[i, i + 1]``."""
+    a = np.arange(m)[:, None] * (extent / m)                  # (m, 1) interval starts
+    b = np.arange(1, m + 1)[:, None] * (extent / m)
+    i = np.floor(a).astype(np.int64) + np.arange(math.ceil(extent / m) + 2)[None, :]
+    overlap = np.minimum(b, i + 1) - np.maximum(a, i)
+    keep = (overlap > 0) & (i < n)
+    rows = np.broadcast_to(np.arange(m)[:, None], i.shape)[keep]
+    weights = (overlap / (b - a))[keep].astype(np.float32)
+    return scipy.sparse.csr_matrix((weights, (rows, i[keep])), shape=(m, n))
+
+
+def area_resize(image: np.ndarray, size: tuple[int, int], extent: tuple[float, float] | None = None) -> np.ndarray:
+    """Reduce an image by area averaging: each new pixel is the mean of the old over its footprint.
+
+    Parameters
+    ----------
+    image : (h, w) or (h, w, c) float32 NumPy array
+    size : (int, int)
+        New ``(height, width)``, at most the old.
+    extent : (float, float), optional
+        The part ``[0, extent_y] x [0, extent_x]`` of the old image (in old
+        pixels, at most ``(h, w)``) that the new one covers; default all of it.
+        New pixel ``(i, j)`` covers old ``[j ex / W, (j + 1) ex / W] x [...]``,
+        fractional pixels weighted by their area.
+
+    Returns
+    -------
+    (H, W) or (H, W, c) float32 NumPy array
+
+    Raises
+    ------
+    ValueError
+        A size below 1, an extent outside the image.
+
+    Examples
+    --------
+    >>> area_resize(np.arange(6, dtype=np.float32).reshape(1, 6), (1, 2)).tolist()
+    [[1.0, 4.0]]
+    """
+    h, w = image.shape[:2]
+    H, W = size
+    ey, ex = (h, w) if extent is None else extent
+    if not (H >= 1 and W >= 1 and 0 < ey <= h and 0 < ex <= w):
+        fail("area_resize", f"a size >= 1 and an extent in (0, {h}] x (0, {w}]",
+             f"size {tuple(size)}, extent {(ey, ex)}")
+    if (H, W, ey, ex) == (h, w, h, w):
+        return image
+    flat = image.reshape(h, -1)
+    out = _area_matrix(h, H, ey) @ flat                                         # (H, w * c)
+    out = out.reshape(H, w, -1).transpose(1, 0, 2).reshape(w, -1)
+    out = (_area_matrix(w, W, ex) @ out).reshape(W, H, -1).transpose(1, 0, 2)   # (H, W, c)
+    return np.ascontiguousarray(out.reshape((H, W) + image.shape[2:]), dtype=np.float32)
+
+
 @dataclass(frozen=True, eq=False)
 class View:
     """One calibrated image: camera, linear RGB, foreground mask, and which pixels the photo saw.
@@ -246,14 +335,14 @@ class View:
 
     def resized(self, factor: float) -> View:
         """Return the view downsampled by ``factor``: area-averaged rgb and mask, the camera by
-        :func:`~mi_loop.io.undistort.scale_camera`.
+        :func:`scale_camera`.
 
         Every pixel coordinate scales by exactly ``factor`` on both axes, so square
         pixels stay square (Mitsuba's sensor needs them); the size is
         ``floor(width * factor) x floor(height * factor)``, the last part-pixel
         cropped. Every new pixel is the mean of the old image over its footprint
         (``1 / factor`` old pixels on each axis, fractional pixels weighted by
-        their area: :func:`~mi_loop.io.undistort.area_resize`); with ``valid``,
+        their area: :func:`area_resize`); with ``valid``,
         the mean over the seen part (weighted by ``valid``), and ``valid`` the
         mean of the old.
 
@@ -266,8 +355,6 @@ class View:
         -------
         View
         """
-        from mi_loop.io.undistort import area_resize, scale_camera  # undistort builds on this module
-
         factor = check_factor(factor, "View.resized", downsampling=True)
         if factor == 1:
             return self
